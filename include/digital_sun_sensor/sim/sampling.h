@@ -1,0 +1,41 @@
+// Sun directions for datasets: uniform random over the field of view, or the
+// published protocol's grid of spot centres on integer pixel offsets.
+#pragma once
+
+#include "digital_sun_sensor/sim/sensor_config.h"
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace dss {
+
+enum class SamplingMode { kRandom, kGrid };
+
+SamplingMode parseSamplingMode(const std::string& text);  // throws std::invalid_argument
+std::string toString(SamplingMode mode);
+
+class AttitudeSampler {
+ public:
+  // Grid: spot centres (single centred aperture) at integer pixel offsets
+  // -W/2..W/2 from the detector centre (513 x 513 for the 512 px reference),
+  // visited in a seeded random order; alpha = -atan(x p / h).
+  AttitudeSampler(const SensorConfig& config, SamplingMode mode, std::uint64_t seed);
+
+  // Sun vector (sensor frame) of dataset image `index`; deterministic.
+  Eigen::Vector3d sunVector(std::uint64_t index) const;
+  // Number of distinct grid points (0 for random sampling).
+  std::uint64_t gridPoints() const { return order_.size(); }
+
+ private:
+  SamplingMode mode_;
+  std::uint64_t seed_;
+  double alpha_max_rad_, beta_max_rad_;
+  double pitch_over_height_;
+  int grid_half_x_ = 0, grid_half_y_ = 0;
+  std::vector<std::uint32_t> order_;
+};
+
+}  // namespace dss

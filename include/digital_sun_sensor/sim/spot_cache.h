@@ -1,0 +1,45 @@
+// Spot shapes cached on a grid of incidence angles and blended bilinearly:
+// across a thesis sensor's +-4.5 deg field the shape changes only through
+// vignetting, obliquity and foreshortening, all smooth in angle, so a few
+// dozen diffraction computations serve millions of images. Thread-safe;
+// nodes are computed lazily, once, by the first thread that needs them.
+#pragma once
+
+#include "digital_sun_sensor/sim/optics.h"
+
+#include <array>
+#include <future>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+
+namespace dss {
+
+class SpotCache {
+ public:
+  explicit SpotCache(OpticalPath path, double node_step_deg);
+
+  struct Blend {
+    std::array<std::shared_ptr<const SpotMap>, 4> maps;
+    std::array<float, 4> weights{};
+    int count = 0;
+  };
+
+  // Maps around the incidence direction `sun_mask` (unit, mask frame), with
+  // bilinear weights in (alpha, beta) of the mask frame.
+  Blend lookup(const ApertureGeometry& aperture, const Eigen::Vector3d& sun_mask);
+
+  const OpticalPath& path() const { return path_; }
+  std::size_t nodesComputed() const;
+
+ private:
+  std::shared_ptr<const SpotMap> node(const ApertureGeometry& aperture, const std::string& key, int ix, int iy);
+
+  OpticalPath path_;
+  double step_rad_;
+  mutable std::mutex mutex_;
+  std::map<std::string, std::shared_future<std::shared_ptr<const SpotMap>>> nodes_;
+};
+
+}  // namespace dss

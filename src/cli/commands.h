@@ -1,0 +1,25 @@
+// dss subcommands. Each returns the process exit code.
+#pragma once
+
+#include "cli_args.h"
+
+#include "digital_sun_sensor/sim/sensor_config.h"
+
+#include <string>
+#include <vector>
+
+namespace dss::cli {
+
+int runGenerate(int argc, char** argv);
+int runBench(int argc, char** argv);
+
+// Options shared by every command that loads a sensor config.
+std::vector<OptionSpec> sensorOptions();
+// Config from --sensor, --set and --anomalies.
+SensorConfig loadSensorFromArgs(const Args& args);
+// "--anomalies" spec -> config overrides. SPEC: none | mix | comma list of
+// stray_light=P, ghost=P, debris=P (probabilities), hot_pixels=N (count),
+// as_built=S (scale of the as-built sigmas below, 1 = nominal tolerances).
+std::vector<std::string> anomalyOverrides(const std::string& spec);
+
+}  // namespace dss::cli

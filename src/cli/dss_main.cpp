@@ -1,0 +1,36 @@
+// dss: the digital_sun_sensor command line (no ROS master needed).
+#include "commands.h"
+
+#include <iostream>
+#include <string>
+
+namespace {
+
+const char* kUsage =
+    "usage: dss <command> [options]     (dss <command> --help for its options)\n"
+    "\n"
+    "commands:\n"
+    "  generate   render a dataset (images + ground truth) into a rosbag\n"
+    "  bench      benchmarks printing one JSON line (bench sim)\n";
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const std::string command = argc > 1 ? argv[1] : "";
+  try {
+    if (command == "generate") return dss::cli::runGenerate(argc, argv);
+    if (command == "bench") return dss::cli::runBench(argc, argv);
+    if (command == "--help" || command == "-h" || command == "help") {
+      std::cout << kUsage;
+      return 0;
+    }
+    std::cerr << (command.empty() ? "" : "dss: unknown command '" + command + "'\n") << kUsage;
+    return 2;
+  } catch (const dss::cli::UsageError& e) {
+    std::cerr << e.what() << "\n";
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << "dss " << command << ": error: " << e.what() << "\n";
+    return 1;
+  }
+}

@@ -1,0 +1,59 @@
+#include "digital_sun_sensor/ros/conversions.h"
+
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+
+namespace dss {
+
+sensor_msgs::Image toImageMsg(const cv::Mat& image, const std_msgs::Header& header) {
+  sensor_msgs::Image msg;
+  msg.header = header;
+  msg.height = static_cast<std::uint32_t>(image.rows);
+  msg.width = static_cast<std::uint32_t>(image.cols);
+  if (image.type() == CV_8UC1) {
+    msg.encoding = "mono8";
+  } else if (image.type() == CV_16UC1) {
+    msg.encoding = "mono16";
+  } else {
+    throw std::invalid_argument("toImageMsg: only CV_8UC1 and CV_16UC1 images are supported");
+  }
+  msg.is_bigendian = 0;
+  msg.step = static_cast<std::uint32_t>(image.cols * image.elemSize());
+  msg.data.resize(static_cast<std::size_t>(msg.step) * image.rows);
+  for (int r = 0; r < image.rows; ++r) std::memcpy(&msg.data[r * msg.step], image.ptr(r), msg.step);
+  return msg;
+}
+
+bool insideFieldOfView(const SensorConfig& config, double alpha_rad, double beta_rad) {
+  constexpr double kRad = M_PI / 180.0;
+  return std::abs(alpha_rad) <= config.fov.alpha_max_deg * kRad && std::abs(beta_rad) <= config.fov.beta_max_deg * kRad;
+}
+
+SunAngles toTruthMsg(const ImageTruth& truth, const SensorConfig& config, const std_msgs::Header& header) {
+  SunAngles msg;
+  msg.header = header;
+  msg.alpha = truth.alpha_rad;
+  msg.beta = truth.beta_rad;
+  msg.covariance = {0.0, 0.0, 0.0, 0.0};
+  msg.subfov_class = truth.subfov_class;
+  msg.source = "truth";
+  msg.valid = truth.sun.z() > 0.0 && insideFieldOfView(config, truth.alpha_rad, truth.beta_rad);
+  if (!msg.valid) msg.status = truth.sun.z() > 0.0 ? "outside_fov" : "sun_behind_sensor";
+  return msg;
+}
+
+SpotCentres toSpotsMsg(const ImageTruth& truth, const std_msgs::Header& header) {
+  SpotCentres msg;
+  msg.header = header;
+  for (const auto& s : truth.spots) {
+    msg.aperture_index.push_back(s.aperture_index);
+    msg.x_px.push_back(s.x_px);
+    msg.y_px.push_back(s.y_px);
+    msg.on_detector.push_back(s.on_detector);
+    msg.relative_flux.push_back(s.relative_flux);
+  }
+  return msg;
+}
+
+}  // namespace dss

@@ -1,0 +1,75 @@
+#include "digital_sun_sensor/sim/readout.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace dss {
+namespace {
+
+double normalCdf(double x) { return 0.5 * std::erfc(-x / std::sqrt(2.0)); }
+
+}  // namespace
+
+ReadoutTable::ReadoutTable(const DetectorNoiseConfig& noise) {
+  const int max_code = (1 << noise.bit_depth) - 1;
+  const double gain = max_code / noise.adc_full_scale_e;
+  const double sigma = noise.read_noise_e;
+  const int n_max = static_cast<int>(std::floor(noise.full_well_e));
+  first_code_.resize(n_max + 1);
+  cdf_offset_.resize(n_max + 1);
+  cdf_length_.resize(n_max + 1);
+  for (int n = 0; n <= n_max; ++n) {
+    // code = clamp(floor((n + sigma z) gain + black + 0.5), 0, max)
+    const double centre = n * gain + noise.black_level_dn;
+    const double spread = 8.0 * sigma * gain + 1.0;
+    const int lo = std::clamp(static_cast<int>(std::floor(centre - spread)), 0, max_code);
+    const int hi = std::clamp(static_cast<int>(std::ceil(centre + spread)), 0, max_code);
+    first_code_[n] = lo;
+    cdf_offset_[n] = static_cast<int>(cdf_.size());
+    for (int d = lo; d <= hi; ++d) {
+      double p_le;
+      if (d == max_code) {
+        p_le = 1.0;
+      } else if (sigma > 0.0) {
+        // code <= d  <=>  (n + sigma z) gain + black + 0.5 < d + 1
+        p_le = normalCdf(((d + 0.5 - noise.black_level_dn) / gain - n) / sigma);
+      } else {
+        p_le = centre + 0.5 < d + 1 ? 1.0 : 0.0;
+      }
+      cdf_.push_back(d == hi ? 1.0 : p_le);
+    }
+    cdf_length_[n] = hi - lo + 1;
+  }
+  // Mode of n = 0 and the probability of anything else.
+  double best = -1.0;
+  for (int i = 0; i < cdf_length_[0]; ++i) {
+    const double p = cdf_[i] - (i > 0 ? cdf_[i - 1] : 0.0);
+    if (p > best) best = p, zero_mode_ = first_code_[0] + i;
+  }
+  zero_exception_ = std::max(0.0, 1.0 - best);
+}
+
+int ReadoutTable::codeFor(int n, double u) const {
+  const double* cdf = &cdf_[cdf_offset_[n]];
+  const int len = cdf_length_[n];
+  const int i = static_cast<int>(std::lower_bound(cdf, cdf + len, u) - cdf);
+  return first_code_[n] + std::min(i, len - 1);
+}
+
+int ReadoutTable::sample(int n, Rng& rng) const {
+  n = std::clamp(n, 0, static_cast<int>(first_code_.size()) - 1);
+  return codeFor(n, rng.uniform());
+}
+
+int ReadoutTable::sampleZeroException(Rng& rng) const {
+  // Inverse-CDF draw restricted to the codes other than the mode.
+  const int mode_index = zero_mode_ - first_code_[0];
+  const double below = mode_index > 0 ? cdf_[mode_index - 1] : 0.0;
+  const double mode_cdf = cdf_[mode_index];
+  const double tail = below + (1.0 - mode_cdf);
+  if (tail <= 0.0) return zero_mode_;
+  const double u = rng.uniform() * tail;
+  return codeFor(0, u < below ? u : mode_cdf + (u - below) + 1e-300);
+}
+
+}  // namespace dss

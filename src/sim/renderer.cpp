@@ -1,0 +1,279 @@
+#include "digital_sun_sensor/sim/renderer.h"
+
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/optics.h"
+#include "digital_sun_sensor/sim/readout.h"
+#include "digital_sun_sensor/sim/spot_cache.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace dss {
+namespace {
+
+constexpr double kPlanck = 6.62607015e-34;
+constexpr double kLightSpeed = 2.99792458e8;
+
+// Adds `scale` x (blended spot) centred at detector position (cx, cy) [um].
+void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double cy_um, double scale,
+           double pitch_um) {
+  const int w = image.cols, h = image.rows;
+  const double half_w = 0.5 * (w - 1), half_h = 0.5 * (h - 1);
+  double u_lo = std::numeric_limits<double>::max(), u_hi = -u_lo, v_lo = u_lo, v_hi = -u_lo;
+  for (int k = 0; k < blend.count; ++k) {
+    const SpotMap& m = *blend.maps[k];
+    u_lo = std::min(u_lo, m.u0_um);
+    v_lo = std::min(v_lo, m.v0_um);
+    u_hi = std::max(u_hi, m.u0_um + (m.cols - 1) * m.step_um);
+    v_hi = std::max(v_hi, m.v0_um + (m.rows - 1) * m.step_um);
+  }
+  const int c0 = std::max(0, static_cast<int>(std::ceil((cx_um + u_lo) / pitch_um + half_w)));
+  const int c1 = std::min(w - 1, static_cast<int>(std::floor((cx_um + u_hi) / pitch_um + half_w)));
+  const int r0 = std::max(0, static_cast<int>(std::ceil((cy_um + v_lo) / pitch_um + half_h)));
+  const int r1 = std::min(h - 1, static_cast<int>(std::floor((cy_um + v_hi) / pitch_um + half_h)));
+  for (int r = r0; r <= r1; ++r) {
+    float* row = image.ptr<float>(r);
+    const double v = (r - half_h) * pitch_um - cy_um;
+    for (int c = c0; c <= c1; ++c) {
+      const double u = (c - half_w) * pitch_um - cx_um;
+      float acc = 0.0f;
+      for (int k = 0; k < blend.count; ++k) acc += blend.weights[k] * blend.maps[k]->sample(u, v);
+      row[c] += static_cast<float>(scale * acc);
+    }
+  }
+}
+
+}  // namespace
+
+int subFovClass(const SensorConfig& config, const ImageTruth& truth) {
+  if (config.subfov == SubFovType::kQuadrant) return quadrantClass(truth.alpha_rad, truth.beta_rad);
+  int best = -1;
+  double best_d2 = std::numeric_limits<double>::max();
+  for (const auto& s : truth.spots) {
+    const double d2 = s.x_px * s.x_px + s.y_px * s.y_px;
+    if (d2 < best_d2) best_d2 = d2, best = s.aperture_index;
+  }
+  return best;
+}
+
+Renderer::Renderer(SensorInstance instance) : instance_(std::move(instance)) {
+  const auto& c = instance_.config;
+  cache_ = std::make_unique<SpotCache>(OpticalPath::from(c), c.optics.psf_node_step_deg);
+  readout_ = std::make_unique<ReadoutTable>(c.noise);
+  double mean_wavelength_um = 0.0, weight_sum = 0.0;
+  for (std::size_t i = 0; i < c.optics.wavelengths_um.size(); ++i) {
+    mean_wavelength_um += c.optics.wavelengths_um[i] * c.optics.spectral_weights[i];
+    weight_sum += c.optics.spectral_weights[i];
+  }
+  mean_wavelength_um /= weight_sum;
+  const double photon_energy_j = kPlanck * kLightSpeed / (mean_wavelength_um * 1e-6);
+  const double photons_per_m2_s = c.radiometry.irradiance_w_m2 * c.radiometry.nd_transmission / photon_energy_j;
+  electron_rate_ = photons_per_m2_s * 1e-12 * c.radiometry.quantum_efficiency;
+}
+
+Renderer::~Renderer() = default;
+
+double Renderer::darkElectronsPerSecond() const {
+  const auto& n = instance_.config.noise;
+  return n.dark_current_e_per_s * std::pow(2.0, (n.temperature_c - n.dark_reference_temp_c) / n.dark_doubling_temp_c);
+}
+
+cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* truth, Rng* anomaly_rng) const {
+  const SensorConfig& c = instance_.config;
+  const int w = c.detector.width_px, h = c.detector.height_px;
+  const double pitch = c.detector.pitch_um;
+  const Eigen::Vector3d sun = sun_in.normalized();
+  ImageTruth t;
+  t.sun = sun;
+  const SunAnglesRad angles = anglesFromSunVector(sun);
+  t.alpha_rad = angles.alpha;
+  t.beta_rad = angles.beta;
+
+  const bool ghost = anomaly_rng && anomaly_rng->uniform() < c.anomalies.ghost_probability;
+  const bool stray = anomaly_rng && anomaly_rng->uniform() < c.anomalies.stray_light_probability;
+  t.ghost = ghost;
+  t.stray_light = stray;
+
+  cv::Mat rate(h, w, CV_32F, cv::Scalar(0));  // optical photoelectrons per second
+  const Eigen::Vector3d sun_mask = instance_.mask_rotation.transpose() * sun;
+  const GlassSlab glass{c.cover_glass.enabled ? c.cover_glass.thickness_mm * 1000.0 : 0.0,
+                        c.cover_glass.enabled ? c.cover_glass.refractive_index : 1.0};
+  const double half_w_um = 0.5 * w * pitch, half_h_um = 0.5 * h * pitch;
+  for (std::size_t i = 0; i < instance_.apertures.size(); ++i) {
+    const Eigen::Vector3d ap = instance_.apertureCentreUm(i);
+    const auto hit = traceToDetector(ap, sun, glass);
+    SpotTruth spot;
+    spot.aperture_index = static_cast<int>(i);
+    if (!hit) {
+      t.spots.push_back(spot);
+      continue;
+    }
+    spot.x_px = hit->x() / pitch;
+    spot.y_px = hit->y() / pitch;
+    spot.on_detector = std::abs(hit->x()) < half_w_um && std::abs(hit->y()) < half_h_um;
+    const ApertureGeometry geometry = ApertureGeometry::from(instance_.apertures[i]);
+    // Skip spots that cannot reach the detector at all (wide-field masks).
+    const double reach_um = geometry.boundingRadiusUm() * 2.0 + 0.1 * ap.z();
+    if (std::abs(hit->x()) > half_w_um + reach_um || std::abs(hit->y()) > half_h_um + reach_um) {
+      t.spots.push_back(spot);
+      continue;
+    }
+    const SpotCache::Blend blend = cache_->lookup(geometry, sun_mask);
+    double power = 0.0;
+    for (int k = 0; k < blend.count; ++k) power += blend.weights[k] * blend.maps[k]->total_power_um2;
+    spot.relative_flux = static_cast<float>(power / ApertureGeometry::from(c.mask.apertures[i]).nominalAreaUm2());
+    splat(rate, blend, hit->x(), hit->y(), electron_rate_, pitch);
+    if (ghost) {
+      // Detector -> mask underside -> detector: one more round trip of the
+      // lateral drift, attenuated by both reflectances.
+      const Eigen::Vector2d ghost_at = *hit + 2.0 * (*hit - ap.head<2>());
+      splat(rate, blend, ghost_at.x(), ghost_at.y(), electron_rate_ * c.anomalies.ghost_reflectance, pitch);
+    }
+    t.spots.push_back(spot);
+  }
+  t.subfov_class = subFovClass(c, t);
+
+  double peak_rate = 0.0;
+  cv::minMaxLoc(rate, nullptr, &peak_rate);
+  double exposure_s = c.exposure.exposure_s;
+  if (c.exposure.mode == ExposureMode::kAuto && peak_rate > 0.0) {
+    exposure_s = c.exposure.peak_fraction_of_full_well * c.noise.full_well_e / peak_rate;
+  }
+  t.exposure_s = exposure_s;
+  cv::Mat electrons = rate * exposure_s;
+
+  if (stray) {
+    // Smooth gradient (Earth albedo, scattered light): amplitude and direction random.
+    const double amplitude = anomaly_rng->uniform(0.0, c.anomalies.stray_light_max_fraction) * c.noise.full_well_e;
+    const double slope = anomaly_rng->uniform();
+    const double phi = anomaly_rng->uniform(0.0, 2.0 * M_PI);
+    const double radius = std::hypot(0.5 * w, 0.5 * h);
+    for (int r = 0; r < h; ++r) {
+      float* row = electrons.ptr<float>(r);
+      for (int col = 0; col < w; ++col) {
+        const double proj = ((col - 0.5 * (w - 1)) * std::cos(phi) + (r - 0.5 * (h - 1)) * std::sin(phi)) / radius;
+        row[col] += static_cast<float>(amplitude * (1.0 - 0.5 * slope + 0.5 * slope * proj));
+      }
+    }
+  }
+  if (truth) *truth = std::move(t);
+  return electrons;
+}
+
+cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, const RenderOptions& options) const {
+  const SensorConfig& c = instance_.config;
+  const auto& n = c.noise;
+  const int w = signal_e.cols, h = signal_e.rows;
+  const int n_px = w * h;
+  const int max_code = c.maxCode();
+  const double gain = max_code / n.adc_full_scale_e;  // DN per electron
+  const bool noise = options.noise;
+  const double dark_e = noise ? darkElectronsPerSecond() * exposure_s : 0.0;
+  const bool prnu = noise && !instance_.prnu_gain.empty();
+  const bool dsnu = noise && !instance_.dark_scale.empty();
+  // Per-thread scratch: rendering runs on several threads, each image reuses it.
+  thread_local std::vector<int> codes, electrons, touched;
+  codes.resize(n_px);
+
+  if (noise && n.shot_noise) {
+    // Electron counts: Poisson(signal) where there is signal, plus dark
+    // electrons as a thinned Poisson process over the whole array (sums of
+    // independent Poisson variables are Poisson: the split is exact).
+    electrons.assign(n_px, 0);
+    touched.clear();
+    for (int r = 0; r < h; ++r) {
+      const float* in = signal_e.ptr<float>(r);
+      for (int col = 0; col < w; ++col) {
+        if (in[col] <= 0.0f) continue;
+        const int idx = r * w + col;
+        const double mean = prnu ? in[col] * instance_.prnu_gain[idx] : in[col];
+        electrons[idx] = static_cast<int>(rng.poisson(mean));
+        touched.push_back(idx);
+      }
+    }
+    if (dark_e > 0.0) {
+      const double max_scale = dsnu ? *std::max_element(instance_.dark_scale.begin(), instance_.dark_scale.end()) : 1.0;
+      const double bound = dark_e * max_scale;
+      const auto candidates = static_cast<std::uint64_t>(rng.poisson(bound * n_px));
+      for (std::uint64_t k = 0; k < candidates; ++k) {
+        const int idx = static_cast<int>(rng.below(n_px));
+        const double accept = dsnu ? instance_.dark_scale[idx] / max_scale : 1.0;
+        if (dsnu && rng.uniform() >= accept) continue;
+        if (electrons[idx]++ == 0) touched.push_back(idx);
+      }
+    }
+    for (const auto& hp : instance_.hot_pixels) {
+      const int extra = static_cast<int>(rng.poisson(hp.dark_e_per_s * exposure_s));
+      if (extra > 0 && electrons[hp.index] == 0) touched.push_back(hp.index);
+      electrons[hp.index] += extra;
+    }
+    // Read noise + ADC through the exact per-count code distributions.
+    const int full_well = static_cast<int>(n.full_well_e);
+    std::fill(codes.begin(), codes.end(), readout_->zeroMode());
+    const double p_exception = readout_->zeroExceptionProbability();
+    if (p_exception > 0.0) {
+      // Geometric skipping to the pixels whose n = 0 code is not the mode.
+      const double log_q = std::log1p(-std::min(p_exception, 1.0 - 1e-12));
+      for (double pos = -1.0;;) {
+        pos += 1.0 + std::floor(std::log(rng.uniformPositive()) / log_q);
+        if (pos >= n_px) break;
+        codes[static_cast<int>(pos)] = readout_->sampleZeroException(rng);
+      }
+    }
+    for (int idx : touched) {
+      const int count = std::min(electrons[idx], full_well);  // saturation
+      if (count > 0) codes[idx] = readout_->sample(count, rng);
+    }
+  } else {
+    // Mean image (noise off) or no shot noise: direct evaluation.
+    for (int r = 0; r < h; ++r) {
+      const float* in = signal_e.ptr<float>(r);
+      for (int col = 0; col < w; ++col) {
+        const int idx = r * w + col;
+        double e = (prnu ? in[col] * instance_.prnu_gain[idx] : in[col]) +
+                   (dsnu ? dark_e * instance_.dark_scale[idx] : dark_e);
+        e = std::min(e, n.full_well_e);
+        if (noise && n.read_noise_e > 0.0) e += n.read_noise_e * rng.normal();
+        const double dn = std::floor(e * gain + n.black_level_dn + 0.5);
+        codes[idx] = static_cast<int>(std::clamp(dn, 0.0, static_cast<double>(max_code)));
+      }
+    }
+  }
+
+  // On-chip thresholding through a lookup table over codes.
+  std::vector<int> lut(max_code + 1);
+  const bool threshold = options.threshold && c.threshold.enabled;
+  const double level = c.threshold.level_fraction * max_code;
+  for (int d = 0; d <= max_code; ++d) {
+    lut[d] = d;
+    if (!threshold) continue;
+    if (d < level) {
+      lut[d] = 0;
+    } else if (c.threshold.rescale) {
+      lut[d] = static_cast<int>(std::floor((d - level) / (max_code - level) * max_code + 0.5));
+    }
+  }
+  cv::Mat out(h, w, n.bit_depth <= 8 ? CV_8U : CV_16U);
+  if (out.depth() == CV_8U) {
+    auto* p = out.ptr<std::uint8_t>();
+    for (int i = 0; i < n_px; ++i) p[i] = static_cast<std::uint8_t>(lut[codes[i]]);
+  } else {
+    auto* p = out.ptr<std::uint16_t>();
+    for (int i = 0; i < n_px; ++i) p[i] = static_cast<std::uint16_t>(lut[codes[i]]);
+  }
+  return out;
+}
+
+cv::Mat Renderer::render(const Eigen::Vector3d& sun, std::uint64_t image_seed, ImageTruth* truth,
+                         const RenderOptions& options) const {
+  Rng anomaly_rng(deriveSeed(image_seed, 1));
+  Rng noise_rng(deriveSeed(image_seed, 2));
+  ImageTruth t;
+  cv::Mat electrons = expectedElectrons(sun, &t, options.anomalies ? &anomaly_rng : nullptr);
+  cv::Mat image = detect(electrons, t.exposure_s, noise_rng, options);
+  if (truth) *truth = std::move(t);
+  return image;
+}
+
+}  // namespace dss

@@ -1,0 +1,73 @@
+#include "digital_sun_sensor/sim/spot_cache.h"
+
+#include "digital_sun_sensor/sim/geometry.h"
+
+#include <cmath>
+
+namespace dss {
+
+SpotCache::SpotCache(OpticalPath path, double node_step_deg)
+    : path_(std::move(path)), step_rad_(node_step_deg * M_PI / 180.0) {}
+
+std::size_t SpotCache::nodesComputed() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return nodes_.size();
+}
+
+std::shared_ptr<const SpotMap> SpotCache::node(const ApertureGeometry& aperture, const std::string& key, int ix,
+                                               int iy) {
+  const std::string id = key + '@' + std::to_string(ix) + ',' + std::to_string(iy);
+  std::promise<std::shared_ptr<const SpotMap>> promise;
+  std::shared_future<std::shared_ptr<const SpotMap>> future;
+  bool owner = false;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = nodes_.find(id);
+    if (it != nodes_.end()) {
+      future = it->second;
+    } else {
+      future = promise.get_future().share();
+      nodes_.emplace(id, future);
+      owner = true;
+    }
+  }
+  if (owner) {
+    // Computed outside the lock: other nodes proceed in parallel, and threads
+    // that need this one wait on the future.
+    try {
+      const Eigen::Vector3d direction =
+          path_.mode == OpticsMode::kFarField ? Eigen::Vector3d::UnitZ()
+                                              : sunVectorFromAngles(ix * step_rad_, iy * step_rad_);
+      promise.set_value(std::make_shared<const SpotMap>(computeSpotMap(aperture, direction, path_)));
+    } catch (...) {
+      promise.set_exception(std::current_exception());
+    }
+  }
+  return future.get();
+}
+
+SpotCache::Blend SpotCache::lookup(const ApertureGeometry& aperture, const Eigen::Vector3d& sun_mask) {
+  const std::string key = aperture.key();
+  Blend blend;
+  if (path_.mode == OpticsMode::kFarField) {
+    // The Fraunhofer shape does not depend on the incidence; only cos(theta) does.
+    blend.maps[0] = node(aperture, key, 0, 0);
+    blend.weights[0] = static_cast<float>(sun_mask.normalized().z());
+    blend.count = 1;
+    return blend;
+  }
+  const SunAnglesRad a = anglesFromSunVector(sun_mask);
+  const double gx = a.alpha / step_rad_, gy = a.beta / step_rad_;
+  const int ix = static_cast<int>(std::floor(gx)), iy = static_cast<int>(std::floor(gy));
+  const double fx = gx - ix, fy = gy - iy;
+  const double w[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
+  for (int k = 0; k < 4; ++k) {
+    if (w[k] < 1e-9) continue;
+    blend.maps[blend.count] = node(aperture, key, ix + (k & 1), iy + (k >> 1));
+    blend.weights[blend.count] = static_cast<float>(w[k]);
+    ++blend.count;
+  }
+  return blend;
+}
+
+}  // namespace dss

@@ -1,0 +1,104 @@
+// Sensor configs: the shipped ones load; every kind of bad config gets an
+// error that names the file and the key.
+#include "digital_sun_sensor/sim/sensor_config.h"
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <regex>
+#include <sstream>
+
+namespace dss {
+namespace {
+
+std::string shipped(const std::string& name) { return std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml"; }
+
+std::string readFile(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// Error message of parsing `text`, or "" when it parses.
+std::string errorOf(const std::string& text, const std::vector<std::string>& overrides = {}) {
+  try {
+    parseSensorConfig(text, "bad.yaml", overrides);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(SensorConfig, ShippedConfigsLoad) {
+  const SensorConfig sa = loadSensorConfig(shipped("thesis_sa"));
+  EXPECT_EQ(sa.name, "thesis_sa");
+  EXPECT_EQ(sa.mask.apertures.size(), 1u);
+  EXPECT_DOUBLE_EQ(sa.mask.height_mm, 5.0);
+  EXPECT_DOUBLE_EQ(sa.detector.pitch_um, 1.55);
+  EXPECT_EQ(loadSensorConfig(shipped("thesis_ma")).mask.apertures.size(), 9u);
+  EXPECT_EQ(loadSensorConfig(shipped("thesis_ca")).mask.apertures.size(), 117u);
+  const SensorConfig wide = loadSensorConfig(shipped("wide_ma"));
+  EXPECT_EQ(wide.mask.apertures.size(), 49u);
+  EXPECT_TRUE(wide.cover_glass.enabled);
+  EXPECT_EQ(wide.numSubFovClasses(), 49);
+}
+
+TEST(SensorConfig, RoundTripsThroughCanonicalYaml) {
+  const SensorConfig a = loadSensorConfig(shipped("wide_ma"));
+  const SensorConfig b = parseSensorConfig(toYaml(a), "roundtrip");
+  EXPECT_EQ(toYaml(a), toYaml(b));
+}
+
+TEST(SensorConfig, OverridesApply) {
+  const SensorConfig c = loadSensorConfig(shipped("thesis_sa"), {"optics.mode=far_field", "mask.height_mm=4.5"});
+  EXPECT_EQ(c.optics.mode, OpticsMode::kFarField);
+  EXPECT_DOUBLE_EQ(c.mask.height_mm, 4.5);
+  EXPECT_NE(errorOf(readFile(shipped("thesis_sa")), {"no_equals_sign"}).find("expected key.path=value"),
+            std::string::npos);
+}
+
+TEST(SensorConfig, BadConfigsNameFileAndKey) {
+  const std::string good = readFile(shipped("thesis_sa"));
+  auto replaced = [&](const std::string& from, const std::string& to) {
+    std::string s = good;
+    const auto pos = s.find(from);
+    EXPECT_NE(pos, std::string::npos) << from;
+    return s.replace(pos, from.size(), to);
+  };
+  auto expectError = [](const std::string& message, const std::vector<std::string>& needles) {
+    ASSERT_FALSE(message.empty()) << "expected an error";
+    EXPECT_EQ(message.rfind("bad.yaml: ", 0), 0u) << message;
+    for (const auto& n : needles) EXPECT_NE(message.find(n), std::string::npos) << message << " lacks " << n;
+  };
+  // Missing key.
+  expectError(errorOf(replaced("  height_mm: 5.0", "")), {"mask.height_mm", "missing"});
+  // Missing section.
+  expectError(errorOf(replaced("fov: {alpha_max_deg: 4.54, beta_max_deg: 4.54}", "")), {"fov", "missing"});
+  // Wrong type.
+  expectError(errorOf(replaced("width_px: 512", "width_px: wide")), {"detector.width_px", "wrong type"});
+  // Negative size.
+  expectError(errorOf(replaced("pitch_um: 1.55", "pitch_um: -1.55")), {"detector.pitch_um", "> 0"});
+  expectError(errorOf(replaced("diameter_um: 100.0", "diameter_um: -5")), {"mask.apertures[0].diameter_um"});
+  // Unknown aperture shape.
+  expectError(errorOf(replaced("shape: circle", "shape: hexagon")), {"mask.apertures[0].shape", "hexagon"});
+  // Mismatched spectrum.
+  expectError(errorOf(replaced("[0.444, 1.0, 0.788, 0.688, 0.356]", "[1.0]")), {"optics.spectral_weights"});
+  // Unknown enum value.
+  expectError(errorOf(replaced("mode: fresnel", "mode: ray_tracing")), {"optics.mode", "ray_tracing"});
+  // Malformed YAML, with its line.
+  expectError(errorOf("name: x\ndetector: {width_px: 512\n"), {"malformed YAML", "line"});
+  expectError(errorOf("- just\n- a list\n"), {"mapping"});
+}
+
+TEST(SensorConfig, MissingFileIsNamed) {
+  try {
+    loadSensorConfig("/nonexistent/sensor.yaml");
+    FAIL() << "expected ConfigError";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("/nonexistent/sensor.yaml"), std::string::npos);
+  }
+}
+
+}  // namespace
+}  // namespace dss

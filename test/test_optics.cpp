@@ -1,0 +1,173 @@
+// Optics against closed forms: Airy far field, geometric shadow, energy
+// conservation, spot centre at h tan(theta) (with and without cover glass).
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/optics.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace dss {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+OpticalPath monochromatic(double z_um, double lambda_um, double step_um, int grid) {
+  OpticalPath p;
+  p.air_gap_um = z_um;
+  p.wavelengths_um = {lambda_um};
+  p.weights = {1.0};
+  p.sun.enabled = false;
+  p.vignetting = false;
+  p.step_um = step_um;
+  p.grid_size = grid;
+  p.pitch_um = 1.55;
+  return p;
+}
+
+ApertureGeometry circle(double d_um) {
+  ApertureGeometry a;
+  a.diameter_um = d_um;
+  return a;
+}
+
+SpotMapOptions raw() {
+  SpotMapOptions o;
+  o.sun_disk = false;
+  o.pixel_integration = false;
+  o.crop = false;
+  return o;
+}
+
+// Irradiance (not pixel power) of a raw map at offset (u, v).
+double irradiance(const SpotMap& m, const OpticalPath& p, double u, double v) {
+  return m.sample(u, v) / (p.pitch_um * p.pitch_um);
+}
+
+TEST(Optics, FarFieldMatchesAiryPattern) {
+  // Fresnel number a^2 / (lambda z) = 0.036: the angular spectrum result must
+  // approach the Fraunhofer (Airy) pattern.
+  const double d = 20.0, z = 5000.0, lambda = 0.55;
+  const OpticalPath p = monochromatic(z, lambda, 1.0, 1024);
+  const SpotMap m = computeSpotMap(circle(d), Eigen::Vector3d::UnitZ(), p, raw());
+  const double peak = airyIrradiance(0.0, d, lambda, z);
+  double worst = 0.0;
+  for (double r = 0.0; r <= 350.0; r += 1.0) {
+    worst = std::max(worst, std::abs(irradiance(m, p, r, 0.0) - airyIrradiance(r, d, lambda, z)));
+    worst = std::max(worst, std::abs(irradiance(m, p, 0.0, -r) - airyIrradiance(r, d, lambda, z)));
+  }
+  EXPECT_LT(worst / peak, 0.01) << "max deviation from Airy, fraction of peak";
+  // First dark ring at 1.22 lambda z / D.
+  const double r0 = 1.22 * lambda * z / d;
+  EXPECT_LT(irradiance(m, p, r0, 0.0) / peak, 0.005);
+}
+
+TEST(Optics, LargeFresnelNumberGivesGeometricShadow) {
+  // a^2 / (lambda z) = 200: the spot is the aperture's shadow.
+  const double d = 200.0, z = 100.0, lambda = 0.5;
+  const OpticalPath p = monochromatic(z, lambda, 0.5, 1024);
+  const SpotMap m = computeSpotMap(circle(d), Eigen::Vector3d::UnitZ(), p, raw());
+  double inner_sum = 0.0, inside_power = 0.0, total = 0.0, outside_max = 0.0;
+  int inner_n = 0;
+  for (int r = 0; r < m.rows; ++r) {
+    for (int c = 0; c < m.cols; ++c) {
+      const double u = m.u0_um + c * m.step_um, v = m.v0_um + r * m.step_um;
+      const double rho = std::hypot(u, v);
+      const double e = m.values[r * m.cols + c] / (p.pitch_um * p.pitch_um);
+      total += e;
+      if (rho < 0.7 * d / 2) inner_sum += e, ++inner_n;
+      if (rho < d / 2) inside_power += e;
+      if (rho > 1.3 * d / 2) outside_max = std::max(outside_max, e);
+    }
+  }
+  EXPECT_NEAR(inner_sum / inner_n, 1.0, 0.03);
+  EXPECT_GT(inside_power / total, 0.98);
+  EXPECT_LT(outside_max, 0.02);
+}
+
+TEST(Optics, EnergyIsConserved) {
+  // Propagation, solar disk and pixel integration each preserve power.
+  const double d = 100.0;
+  OpticalPath p = monochromatic(1000.0, 0.55, 1.0, 1024);
+  const double area = circle(d).nominalAreaUm2();
+  const SpotMap bare = computeSpotMap(circle(d), Eigen::Vector3d::UnitZ(), p, raw());
+  EXPECT_NEAR(bare.total_power_um2 / area, 1.0, 0.01);
+  p.sun.enabled = true;
+  SpotMapOptions all;
+  all.crop = false;
+  const SpotMap filtered = computeSpotMap(circle(d), Eigen::Vector3d::UnitZ(), p, all);
+  EXPECT_NEAR(filtered.total_power_um2 / bare.total_power_um2, 1.0, 0.002);
+  // Oblique incidence: power through the aperture scales with cos(theta).
+  const Eigen::Vector3d oblique = sunVectorFromAngles(4.0 * kDeg, -3.0 * kDeg);
+  const SpotMap tilted = computeSpotMap(circle(d), oblique, p, all);
+  EXPECT_NEAR(tilted.total_power_um2 / (area * oblique.z()), 1.0, 0.01);
+}
+
+// Power-weighted centroid of a map relative to the geometric spot centre [um].
+Eigen::Vector2d centroid(const SpotMap& m) {
+  double su = 0, sv = 0, s = 0;
+  for (int r = 0; r < m.rows; ++r) {
+    for (int c = 0; c < m.cols; ++c) {
+      const double w = m.values[r * m.cols + c];
+      su += w * (m.u0_um + c * m.step_um);
+      sv += w * (m.v0_um + r * m.step_um);
+      s += w;
+    }
+  }
+  return {su / s, sv / s};
+}
+
+TEST(Optics, SpotCentreAtHeightTimesTangent) {
+  // Geometry: the detector hit point of the aperture centre is -h tan(theta).
+  const double h = 5000.0;
+  const Eigen::Vector3d sun = sunVectorFromAngles(3.0 * kDeg, -2.0 * kDeg);
+  const auto hit = traceToDetector(Eigen::Vector3d(0, 0, h), sun, {});
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->x(), -h * std::tan(3.0 * kDeg), 1e-9);
+  EXPECT_NEAR(hit->y(), h * std::tan(2.0 * kDeg), 1e-9);
+  // Diffraction: the light's centroid lands there (maps are relative to it),
+  // polychromatic, with the solar disk and pixel integration.
+  OpticalPath p = monochromatic(h, 0.55, 1.0, 512);
+  p.wavelengths_um = {0.45, 0.506, 0.55, 0.6, 0.65};
+  p.weights = {0.444 / 3.276, 1.0 / 3.276, 0.788 / 3.276, 0.688 / 3.276, 0.356 / 3.276};
+  p.sun.enabled = true;
+  SpotMapOptions o;
+  o.crop = false;
+  const Eigen::Vector2d c = centroid(computeSpotMap(circle(100.0), sun, p, o));
+  EXPECT_LT(c.norm() / p.pitch_um, 0.02) << "centroid offset " << c.transpose() << " um";
+}
+
+TEST(Optics, SpotCentreWithCoverGlassFollowsSnell) {
+  const double h = 5000.0, t = 1000.0, n = 1.5;
+  const double theta = 4.0 * kDeg;
+  const Eigen::Vector3d sun = sunVectorFromAngles(theta, 0.0);
+  const auto hit = traceToDetector(Eigen::Vector3d(0, 0, h), sun, {t, n});
+  ASSERT_TRUE(hit);
+  const double theta_glass = std::asin(std::sin(theta) / n);
+  EXPECT_NEAR(hit->x(), -(h - t) * std::tan(theta) - t * std::tan(theta_glass), 1e-9);
+  EXPECT_NEAR(hit->y(), 0.0, 1e-12);
+  // The diffracted light's centroid follows the refracted ray.
+  OpticalPath p = monochromatic(h - t, 0.55, 1.0, 512);
+  p.glass_um = t;
+  p.glass_index = n;
+  SpotMapOptions o;
+  o.crop = false;
+  const Eigen::Vector2d c = centroid(computeSpotMap(circle(100.0), sun, p, o));
+  EXPECT_LT(c.norm() / p.pitch_um, 0.02) << "centroid offset " << c.transpose() << " um";
+}
+
+TEST(Optics, VignettingShiftsCentroidByHalfThicknessTangent) {
+  // The mask's two faces clip the beam: the open area's centre moves by
+  // t tan(theta) / 2 toward the spot's direction of motion.
+  const double h = 5000.0, t = 30.0, theta = 4.0 * kDeg;
+  OpticalPath p = monochromatic(h, 0.55, 1.0, 512);
+  p.vignetting = true;
+  p.mask_thickness_um = t;
+  SpotMapOptions o;
+  o.crop = false;
+  const Eigen::Vector2d c = centroid(computeSpotMap(circle(100.0), sunVectorFromAngles(theta, 0.0), p, o));
+  EXPECT_NEAR(c.x(), -0.5 * t * std::tan(theta), 0.1 * 0.5 * t * std::tan(theta));
+}
+
+}  // namespace
+}  // namespace dss

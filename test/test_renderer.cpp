@@ -1,0 +1,157 @@
+// Whole-image rendering: determinism, symmetry, truth, anomalies, as-built errors.
+#include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace dss {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+SensorConfig shipped(const std::string& name, const std::vector<std::string>& overrides = {}) {
+  return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml", overrides);
+}
+
+bool identical(const cv::Mat& a, const cv::Mat& b) {
+  return a.size() == b.size() && a.type() == b.type() && cv::countNonZero(a != b) == 0;
+}
+
+Eigen::Vector2d imageCentroidPx(const cv::Mat& electrons) {
+  double sx = 0, sy = 0, s = 0;
+  for (int r = 0; r < electrons.rows; ++r) {
+    for (int c = 0; c < electrons.cols; ++c) {
+      const double w = electrons.at<float>(r, c);
+      sx += w * (c - 0.5 * (electrons.cols - 1));
+      sy += w * (r - 0.5 * (electrons.rows - 1));
+      s += w;
+    }
+  }
+  return {sx / s, sy / s};
+}
+
+TEST(Renderer, SameSeedSameImageAndThreadCountDoesNotMatter) {
+  const SensorConfig c = shipped("thesis_sa");
+  DatasetSpec spec;
+  spec.count = 6;
+  spec.seed = 42;
+  spec.threads = 1;
+  std::vector<cv::Mat> one, two, other;
+  DatasetGenerator(c, spec).run([&](const DatasetItem& i) { one.push_back(i.image.clone()); });
+  spec.threads = 2;
+  DatasetGenerator(c, spec).run([&](const DatasetItem& i) { two.push_back(i.image.clone()); });
+  spec.seed = 43;
+  DatasetGenerator(c, spec).run([&](const DatasetItem& i) { other.push_back(i.image.clone()); });
+  ASSERT_EQ(one.size(), 6u);
+  for (std::size_t i = 0; i < one.size(); ++i) {
+    EXPECT_TRUE(identical(one[i], two[i])) << i;
+    EXPECT_FALSE(identical(one[i], other[i])) << i;
+  }
+}
+
+TEST(Renderer, SpotCentroidAtTruthWithSunDisk) {
+  // Noise-free image, vignetting off: the light's centroid is the true centre.
+  const SensorConfig c = shipped("thesis_sa", {"optics.vignetting=false"});
+  const Renderer r(SensorInstance::nominalOf(c));
+  for (auto [a, b] : {std::pair{0.3, 0.2}, {-2.7, 1.9}, {4.1, -3.6}}) {
+    ImageTruth t;
+    const cv::Mat e = r.expectedElectrons(sunVectorFromAngles(a * kDeg, b * kDeg), &t);
+    ASSERT_EQ(t.spots.size(), 1u);
+    EXPECT_NEAR(t.spots[0].x_px, -5000.0 * std::tan(a * kDeg) / 1.55, 1e-6);
+    EXPECT_NEAR(t.spots[0].y_px, -5000.0 * std::tan(b * kDeg) / 1.55, 1e-6);
+    const Eigen::Vector2d c_px = imageCentroidPx(e);
+    EXPECT_NEAR(c_px.x(), t.spots[0].x_px, 0.02) << a << "," << b;
+    EXPECT_NEAR(c_px.y(), t.spots[0].y_px, 0.02) << a << "," << b;
+    EXPECT_EQ(t.subfov_class, quadrantClass(a * kDeg, b * kDeg));
+  }
+}
+
+TEST(Renderer, QuarterTurnOfTheSunRotatesTheImage) {
+  const SensorConfig c = shipped("thesis_sa");
+  const Renderer r(SensorInstance::nominalOf(c));
+  const Eigen::Vector3d s = sunVectorFromAngles(2.0 * kDeg, 1.0 * kDeg);
+  const Eigen::Vector3d rotated(-s.y(), s.x(), s.z());  // 90 deg about +z
+  const cv::Mat a = r.expectedElectrons(s, nullptr), b = r.expectedElectrons(rotated, nullptr);
+  // (x, y) -> (-y, x): pixel (row r, col c) -> (row c, col W-1-r).
+  double peak, worst = 0.0;
+  cv::minMaxLoc(a, nullptr, &peak);
+  for (int row = 0; row < a.rows; ++row) {
+    for (int col = 0; col < a.cols; ++col) {
+      worst = std::max(worst, static_cast<double>(std::abs(a.at<float>(row, col) - b.at<float>(col, a.cols - 1 - row))));
+    }
+  }
+  EXPECT_LT(worst / peak, 1e-3);
+}
+
+TEST(Renderer, AsBuiltOffsetMovesTheSpot) {
+  const SensorConfig c = shipped("thesis_sa", {"as_built.offset_sigma_um=20"});
+  const SensorInstance built = SensorInstance::draw(c, 17);
+  ASSERT_GT(built.mask_offset_um.head<2>().norm(), 1.0);
+  ImageTruth t;
+  Renderer(built).expectedElectrons(Eigen::Vector3d::UnitZ(), &t);
+  EXPECT_NEAR(t.spots[0].x_px * 1.55, built.mask_offset_um.x(), 1e-6);
+  EXPECT_NEAR(t.spots[0].y_px * 1.55, built.mask_offset_um.y(), 1e-6);
+}
+
+TEST(Renderer, AnomaliesShowUp) {
+  // Hot pixels: bright at their fixed sites.
+  const SensorConfig hot = shipped("thesis_sa", {"anomalies.hot_pixels.count=20", "threshold.enabled=false"});
+  const SensorInstance with_hot = SensorInstance::draw(hot, 3);
+  const cv::Mat img = Renderer(with_hot).render(sunVectorFromAngles(1 * kDeg, 1 * kDeg), 5, nullptr);
+  int bright = 0;
+  for (const auto& hp : with_hot.hot_pixels) bright += img.ptr<std::uint8_t>()[hp.index] > 2 ? 1 : 0;
+  EXPECT_GE(bright, 15);
+  // Stray light raises the background everywhere.
+  const SensorConfig stray = shipped("thesis_sa", {"anomalies.stray_light.probability=1", "threshold.enabled=false"});
+  const Renderer sr(SensorInstance::nominalOf(stray));
+  Rng rng(4);
+  ImageTruth t;
+  const cv::Mat e = sr.expectedElectrons(Eigen::Vector3d::UnitZ(), &t, &rng);
+  EXPECT_TRUE(t.stray_light);
+  EXPECT_GT(e.at<float>(0, 0), 0.0f);
+  // Debris blocks part of an aperture: less light gets through.
+  const SensorConfig debris = shipped("thesis_sa", {"anomalies.debris.probability=1"});
+  const SensorInstance dirty = SensorInstance::draw(debris, 8);
+  ASSERT_EQ(dirty.apertures[0].occluders.size(), 1u);
+  ImageTruth clean_t, dirty_t;
+  Renderer(SensorInstance::nominalOf(debris)).expectedElectrons(Eigen::Vector3d::UnitZ(), &clean_t);
+  Renderer(dirty).expectedElectrons(Eigen::Vector3d::UnitZ(), &dirty_t);
+  EXPECT_LT(dirty_t.spots[0].relative_flux, 0.99f * clean_t.spots[0].relative_flux);
+}
+
+TEST(Renderer, WideFieldSpotsLeaveTheDetectorAndClassIsNearestAperture) {
+  const SensorConfig c = shipped("wide_ma");
+  const Renderer r(SensorInstance::nominalOf(c));
+  ImageTruth t;
+  r.expectedElectrons(Eigen::Vector3d::UnitZ(), &t);
+  EXPECT_EQ(t.subfov_class, 24);  // centre of the 7 x 7 grid
+  ImageTruth tilted;
+  r.expectedElectrons(sunVectorFromAngles(50 * kDeg, -35 * kDeg), &tilted);
+  int on = 0;
+  for (const auto& s : tilted.spots) on += s.on_detector ? 1 : 0;
+  EXPECT_GT(on, 2);
+  EXPECT_LT(on, 49);
+  EXPECT_NE(tilted.subfov_class, 24);
+}
+
+TEST(Sampling, GridFollowsPublishedProtocol) {
+  const SensorConfig c = shipped("thesis_sa");
+  const AttitudeSampler grid(c, SamplingMode::kGrid, 1);
+  EXPECT_EQ(grid.gridPoints(), 513u * 513u);
+  // Every grid attitude puts the spot on an integer pixel offset.
+  const Renderer r(SensorInstance::nominalOf(c));
+  for (std::uint64_t i = 0; i < 20; ++i) {
+    ImageTruth t;
+    const Eigen::Vector3d s = grid.sunVector(i);
+    const auto hit = traceToDetector(Eigen::Vector3d(0, 0, 5000.0), s, {});
+    ASSERT_TRUE(hit);
+    EXPECT_NEAR(hit->x() / 1.55, std::round(hit->x() / 1.55), 1e-6);
+    EXPECT_NEAR(hit->y() / 1.55, std::round(hit->y() / 1.55), 1e-6);
+  }
+}
+
+}  // namespace
+}  // namespace dss

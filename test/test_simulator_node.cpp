@@ -1,0 +1,78 @@
+// rostest: simulator_node publishes image + truth at the configured rate, with
+// equal stamps, over a real master.
+#include <digital_sun_sensor/SpotCentres.h>
+#include <digital_sun_sensor/SunAngles.h>
+#include <gtest/gtest.h>
+#include <ros/ros.h>
+#include <sensor_msgs/Image.h>
+
+#include <map>
+#include <mutex>
+
+namespace {
+
+std::mutex mutex;
+std::vector<sensor_msgs::Image::ConstPtr> images;
+std::map<double, digital_sun_sensor::SunAngles::ConstPtr> truths;
+
+TEST(SimulatorNode, PublishesImageAndTruthAtRateWithEqualStamps) {
+  ros::NodeHandle nh, pnh("~");
+  const double expected_hz = pnh.param("expected_rate_hz", 20.0);
+  auto image_sub = nh.subscribe<sensor_msgs::Image>("/sun_sensor/image", 100, [](const sensor_msgs::Image::ConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex);
+    images.push_back(m);
+  });
+  auto truth_sub = nh.subscribe<digital_sun_sensor::SunAngles>(
+      "/sun_sensor/truth", 100, [](const digital_sun_sensor::SunAngles::ConstPtr& m) {
+        std::lock_guard<std::mutex> lock(mutex);
+        truths[m->header.stamp.toSec()] = m;
+      });
+  // Wait for the first image (the node may still be starting), then measure.
+  ros::Time deadline = ros::Time::now() + ros::Duration(30.0);
+  while (ros::ok() && ros::Time::now() < deadline) {
+    ros::spinOnce();
+    std::lock_guard<std::mutex> lock(mutex);
+    if (!images.empty()) break;
+  }
+  ASSERT_FALSE(images.empty()) << "no image on /sun_sensor/image within 30 s";
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    images.clear();
+    truths.clear();
+  }
+  const double window_s = 3.0;
+  const ros::WallTime start = ros::WallTime::now();
+  while (ros::ok() && (ros::WallTime::now() - start).toSec() < window_s) {
+    ros::spinOnce();
+    ros::WallDuration(0.002).sleep();
+  }
+  ros::WallDuration(0.3).sleep();
+  ros::spinOnce();
+  std::lock_guard<std::mutex> lock(mutex);
+  const double rate = images.size() / window_s;
+  EXPECT_NEAR(rate, expected_hz, 0.2 * expected_hz) << images.size() << " images in " << window_s << " s";
+  ASSERT_GE(images.size(), 10u);
+  int matched = 0;
+  for (const auto& img : images) {
+    EXPECT_EQ(img->width, 512u);
+    EXPECT_EQ(img->height, 512u);
+    EXPECT_EQ(img->encoding, "mono8");
+    EXPECT_EQ(img->header.frame_id, "sun_sensor_link");
+    auto it = truths.find(img->header.stamp.toSec());
+    if (it == truths.end()) continue;
+    ++matched;
+    EXPECT_TRUE(it->second->valid);
+    EXPECT_EQ(it->second->source, "truth");
+    EXPECT_LE(std::abs(it->second->alpha), 4.54 * M_PI / 180.0 + 1e-9);
+  }
+  // Every image except possibly the last one (its truth may be in flight) has its truth.
+  EXPECT_GE(matched, static_cast<int>(images.size()) - 1);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, "test_simulator_node");
+  return RUN_ALL_TESTS();
+}
