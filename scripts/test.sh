@@ -7,11 +7,20 @@ REPO_DIR="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 export DSS_WS="${DSS_WS:-$REPO_DIR/.ws}"
 export PATH="/usr/bin:$PATH"
 
-"$REPO_DIR/scripts/setup.sh" || { echo "setup failed"; echo "0 passed, 1 failed"; exit 1; }
+mkdir -p "$DSS_WS"
+echo "[test] setup + build (log: $DSS_WS/setup.log)"
+if ! "$REPO_DIR/scripts/setup.sh" >"$DSS_WS/setup.log" 2>&1; then
+  tail -n 40 "$DSS_WS/setup.log"
+  echo "setup failed"
+  echo "0 passed, 1 failed"
+  exit 1
+fi
 
 cd "$DSS_WS"
+set +u  # ROS's setup scripts read unset variables
 # shellcheck disable=SC1091
 source devel/setup.bash
+set -u
 export ROS_HOME="${ROS_HOME:-$DSS_WS/ros_home}"
 rm -rf build/test_results
 /usr/bin/python3 /usr/bin/catkin_make run_tests -DPYTHON_EXECUTABLE=/usr/bin/python3 -j"$(nproc)" 2>&1 \
@@ -19,12 +28,28 @@ rm -rf build/test_results
 
 summary="$(catkin_test_results build/test_results 2>&1)"
 status=$?
-echo "$summary" | tail -n 5
-# "Summary: T tests, E errors, F failures, S skipped"
-read -r total errors failures <<<"$(echo "$summary" | sed -n 's/^Summary: \([0-9]*\) tests, \([0-9]*\) errors, \([0-9]*\) failures.*/\1 \2 \3/p')"
-total=${total:-0}; errors=${errors:-0}; failures=${failures:-0}
-failed=$((errors + failures))
+echo "$summary" | tail -n 8
+# Count test cases from the result files (catkin_test_results counts gtest
+# suites twice); a test case fails if it has a <failure> or <error>.
+read -r passed failed <<<"$(/usr/bin/python3 - build/test_results <<'PY'
+import glob, sys, xml.etree.ElementTree as ET
+passed = failed = 0
+for path in glob.glob(sys.argv[1] + "/**/*.xml", recursive=True):
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError:
+        failed += 1
+        continue
+    for case in root.iter("testcase"):
+        if case.find("failure") is not None or case.find("error") is not None:
+            failed += 1
+        else:
+            passed += 1
+print(passed, failed)
+PY
+)"
+passed=${passed:-0}; failed=${failed:-0}
 if [[ $status -ne 0 && $failed -eq 0 ]]; then failed=1; fi
-if [[ $total -eq 0 ]]; then failed=$((failed > 0 ? failed : 1)); fi
-echo "$((total - errors - failures)) passed, ${failed} failed"
+if [[ $passed -eq 0 && $failed -eq 0 ]]; then failed=1; fi
+echo "${passed} passed, ${failed} failed"
 [[ $failed -eq 0 ]]

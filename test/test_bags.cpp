@@ -47,8 +47,8 @@ const std::string kSensor = std::string(DSS_SOURCE_DIR) + "/config/sensors/thesi
 
 TEST(Generate, WritesReadableBagAndSameSeedGivesIdenticalBytes) {
   const std::string a = tmp("a.bag"), b = tmp("b.bag"), c = tmp("c.bag");
-  const std::string base = "generate --sensor " + kSensor + " --count 5 --threads 2 --out ";
-  auto ra = run(base + a + " --seed 3");
+  const std::string base = "generate --sensor " + kSensor + " --count 5 --out ";
+  auto ra = run(base + a + " --seed 3 --threads 2");
   ASSERT_EQ(ra.code, 0) << ra.output;
   ASSERT_EQ(run(base + b + " --seed 3 --threads 1").code, 0);
   ASSERT_EQ(run(base + c + " --seed 4").code, 0);

@@ -15,26 +15,29 @@ std::mutex mutex;
 std::vector<sensor_msgs::Image::ConstPtr> images;
 std::map<double, digital_sun_sensor::SunAngles::ConstPtr> truths;
 
+void onImage(const sensor_msgs::Image::ConstPtr& m) {
+  std::lock_guard<std::mutex> lock(mutex);
+  images.push_back(m);
+}
+
+void onTruth(const digital_sun_sensor::SunAngles::ConstPtr& m) {
+  std::lock_guard<std::mutex> lock(mutex);
+  truths[m->header.stamp.toSec()] = m;
+}
+
 TEST(SimulatorNode, PublishesImageAndTruthAtRateWithEqualStamps) {
   ros::NodeHandle nh, pnh("~");
   const double expected_hz = pnh.param("expected_rate_hz", 20.0);
-  auto image_sub = nh.subscribe<sensor_msgs::Image>("/sun_sensor/image", 100, [](const sensor_msgs::Image::ConstPtr& m) {
-    std::lock_guard<std::mutex> lock(mutex);
-    images.push_back(m);
-  });
-  auto truth_sub = nh.subscribe<digital_sun_sensor::SunAngles>(
-      "/sun_sensor/truth", 100, [](const digital_sun_sensor::SunAngles::ConstPtr& m) {
-        std::lock_guard<std::mutex> lock(mutex);
-        truths[m->header.stamp.toSec()] = m;
-      });
+  auto image_sub = nh.subscribe("/sun_sensor/image", 100, onImage);
+  auto truth_sub = nh.subscribe("/sun_sensor/truth", 100, onTruth);
   // Wait for the first image (the node may still be starting), then measure.
-  ros::Time deadline = ros::Time::now() + ros::Duration(30.0);
+  ros::Time deadline = ros::Time::now() + ros::Duration(80.0);
   while (ros::ok() && ros::Time::now() < deadline) {
     ros::spinOnce();
     std::lock_guard<std::mutex> lock(mutex);
     if (!images.empty()) break;
   }
-  ASSERT_FALSE(images.empty()) << "no image on /sun_sensor/image within 30 s";
+  ASSERT_FALSE(images.empty()) << "no image on /sun_sensor/image within 80 s";
   {
     std::lock_guard<std::mutex> lock(mutex);
     images.clear();

@@ -63,6 +63,19 @@ SimulatorNode::SimulatorNode(ros::NodeHandle nh, ros::NodeHandle pnh) : nh_(nh),
   // One sensor drawn from the config (its as-built sigmas decide the errors).
   renderer_ = std::make_unique<Renderer>(SensorInstance::draw(config, seed_));
 
+  if (pnh_.param("warm_up", true)) {
+    // Diffraction spots for the whole FOV before the first frame, so that the
+    // rate holds from the start (otherwise nodes are computed on first use).
+    const int threads = std::max(1, pnh_.param("warm_up_threads", 2));
+    ROS_INFO("simulator_node: computing diffraction spots over the field of view (%d threads)...", threads);
+    const auto t0 = std::chrono::steady_clock::now();
+    renderer_->warmUp(threads, [](std::size_t done, std::size_t total) {
+      if (done % 25 == 0 || done == total) ROS_INFO("simulator_node: diffraction spots %zu/%zu", done, total);
+    });
+    ROS_INFO("simulator_node: diffraction cache ready in %.1f s",
+             std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+
   image_pub_ = nh_.advertise<sensor_msgs::Image>("image", 5);
   truth_pub_ = nh_.advertise<SunAngles>("truth", 5);
   if (publish_spots_) spots_pub_ = nh_.advertise<SpotCentres>("truth_spots", 5);

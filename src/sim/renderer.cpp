@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <map>
 
 namespace dss {
 namespace {
@@ -73,6 +74,21 @@ Renderer::Renderer(SensorInstance instance) : instance_(std::move(instance)) {
 }
 
 Renderer::~Renderer() = default;
+
+void Renderer::warmUp(int threads, const std::function<void(std::size_t, std::size_t)>& progress) const {
+  const auto& c = instance_.config;
+  // The spot cache already covers one node step beyond the requested range.
+  const double margin = 3.0 * c.as_built.tilt_sigma_deg * M_PI / 180.0;
+  std::map<std::string, ApertureGeometry> unique;
+  for (const auto& a : instance_.apertures) {
+    const ApertureGeometry g = ApertureGeometry::from(a);
+    unique.emplace(g.key(), g);
+  }
+  for (const auto& [key, geometry] : unique) {
+    cache_->warmUp(geometry, c.fov.alpha_max_deg * M_PI / 180.0 + margin, c.fov.beta_max_deg * M_PI / 180.0 + margin,
+                   threads, progress);
+  }
+}
 
 double Renderer::darkElectronsPerSecond() const {
   const auto& n = instance_.config.noise;

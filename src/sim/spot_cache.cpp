@@ -2,7 +2,10 @@
 
 #include "digital_sun_sensor/sim/geometry.h"
 
+#include <atomic>
 #include <cmath>
+#include <thread>
+#include <vector>
 
 namespace dss {
 
@@ -44,6 +47,37 @@ std::shared_ptr<const SpotMap> SpotCache::node(const ApertureGeometry& aperture,
     }
   }
   return future.get();
+}
+
+void SpotCache::warmUp(const ApertureGeometry& aperture, double alpha_max_rad, double beta_max_rad, int threads,
+                       const std::function<void(std::size_t, std::size_t)>& progress) {
+  const std::string key = aperture.key();
+  std::vector<std::pair<int, int>> todo;
+  if (path_.mode == OpticsMode::kFarField) {
+    todo.emplace_back(0, 0);
+  } else {
+    const int nx = static_cast<int>(std::ceil(alpha_max_rad / step_rad_));
+    const int ny = static_cast<int>(std::ceil(beta_max_rad / step_rad_));
+    for (int iy = -ny; iy <= ny; ++iy) {
+      for (int ix = -nx; ix <= nx; ++ix) todo.emplace_back(ix, iy);
+    }
+  }
+  std::atomic<std::size_t> next{0}, done{0};
+  std::mutex progress_mutex;
+  auto work = [&] {
+    for (std::size_t i; (i = next++) < todo.size();) {
+      node(aperture, key, todo[i].first, todo[i].second);
+      const std::size_t d = ++done;
+      if (progress) {
+        std::lock_guard<std::mutex> lock(progress_mutex);
+        progress(d, todo.size());
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(work);
+  work();
+  for (auto& t : pool) t.join();
 }
 
 SpotCache::Blend SpotCache::lookup(const ApertureGeometry& aperture, const Eigen::Vector3d& sun_mask) {

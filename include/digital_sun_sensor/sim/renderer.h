@@ -12,6 +12,7 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -61,6 +62,10 @@ class Renderer {
   // The whole chain; deterministic in (instance, sun, image_seed).
   cv::Mat render(const Eigen::Vector3d& sun, std::uint64_t image_seed, ImageTruth* truth,
                  const RenderOptions& options = {}) const;
+
+  // Fills the diffraction cache for the whole field of view (plus the as-built
+  // mask tilt margin) on `threads` threads, instead of lazily during rendering.
+  void warmUp(int threads, const std::function<void(std::size_t, std::size_t)>& progress = {}) const;
 
   const SensorInstance& instance() const { return instance_; }
   const SensorConfig& config() const { return instance_.config; }

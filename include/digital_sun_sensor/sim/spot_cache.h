@@ -8,6 +8,7 @@
 #include "digital_sun_sensor/sim/optics.h"
 
 #include <array>
+#include <functional>
 #include <future>
 #include <map>
 #include <memory>
@@ -29,6 +30,11 @@ class SpotCache {
   // Maps around the incidence direction `sun_mask` (unit, mask frame), with
   // bilinear weights in (alpha, beta) of the mask frame.
   Blend lookup(const ApertureGeometry& aperture, const Eigen::Vector3d& sun_mask);
+
+  // Computes every node an incidence within +-alpha_max, +-beta_max [rad]
+  // can touch, on `threads` threads; `progress(done, total)` after each node.
+  void warmUp(const ApertureGeometry& aperture, double alpha_max_rad, double beta_max_rad, int threads,
+              const std::function<void(std::size_t, std::size_t)>& progress = {});
 
   const OpticalPath& path() const { return path_; }
   std::size_t nodesComputed() const;
