@@ -12,6 +12,7 @@ namespace dss::cli {
 
 int runGenerate(int argc, char** argv);
 int runBench(int argc, char** argv);
+int runRender(int argc, char** argv);
 
 // Options shared by every command that loads a sensor config.
 std::vector<OptionSpec> sensorOptions();

@@ -11,6 +11,7 @@ const char* kUsage =
     "\n"
     "commands:\n"
     "  generate   render a dataset (images + ground truth) into a rosbag\n"
+    "  render     render one image for a sun direction into a PNG\n"
     "  bench      benchmarks printing one JSON line (bench sim)\n";
 
 }  // namespace
@@ -20,6 +21,7 @@ int main(int argc, char** argv) {
   try {
     if (command == "generate") return dss::cli::runGenerate(argc, argv);
     if (command == "bench") return dss::cli::runBench(argc, argv);
+    if (command == "render") return dss::cli::runRender(argc, argv);
     if (command == "--help" || command == "-h" || command == "help") {
       std::cout << kUsage;
       return 0;
