@@ -113,8 +113,7 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
 
   cv::Mat rate(h, w, CV_32F, cv::Scalar(0));  // optical photoelectrons per second
   const Eigen::Vector3d sun_mask = instance_.mask_rotation.transpose() * sun;
-  const GlassSlab glass{c.cover_glass.enabled ? c.cover_glass.thickness_mm * 1000.0 : 0.0,
-                        c.cover_glass.enabled ? c.cover_glass.refractive_index : 1.0};
+  const GlassSlab glass{cache_->path().glass_um, cache_->path().glass_index};
   const double half_w_um = 0.5 * w * pitch, half_h_um = 0.5 * h * pitch;
   for (std::size_t i = 0; i < instance_.apertures.size(); ++i) {
     const Eigen::Vector3d ap = instance_.apertureCentreUm(i);

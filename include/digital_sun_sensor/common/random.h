@@ -65,7 +65,6 @@ class Rng {
     has_spare_ = true;
     return u * f;
   }
-  double normal(double mean, double sigma) { return mean + sigma * normal(); }
 
   // Poisson-distributed count with mean lambda >= 0. Exact: inversion by
   // sequential search for small means, PTRS (Hoermann 1993) for large ones.

@@ -71,8 +71,6 @@ class Renderer {
   const SensorConfig& config() const { return instance_.config; }
   SpotCache& spotCache() const { return *cache_; }
 
-  // Photoelectrons per second per map unit (um^2 at unit irradiance).
-  double electronsPerSecondPerUm2() const { return electron_rate_; }
   double darkElectronsPerSecond() const;
 
  private:
