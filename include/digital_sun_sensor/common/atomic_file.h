@@ -1,0 +1,15 @@
+// Writes a file so that readers see either the old or the complete new
+// content: temp file in the same directory, fsync, rename.
+#pragma once
+
+#include <string>
+
+namespace dss {
+
+// Throws std::runtime_error naming the path and the OS error.
+void writeFileAtomic(const std::string& path, const std::string& bytes);
+
+// Whole file; throws std::runtime_error naming the path when unreadable.
+std::string readFile(const std::string& path);
+
+}  // namespace dss

@@ -1,0 +1,41 @@
+// What a model file says about its network: architecture, input encoding, the
+// sensor it was trained for, training summary and metrics. Torch-free YAML.
+#pragma once
+
+#include "digital_sun_sensor/model/arch.h"
+#include "digital_sun_sensor/model/input_spec.h"
+
+#include <stdexcept>
+#include <string>
+
+namespace dss {
+
+// A model file that cannot be used; the message names the file and the problem.
+class ModelError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct ModelMetadata {
+  ArchSpec arch;
+  InputSpec input;
+  double angle_scale_rad = 0.0;  // network angle output 1.0 = this many radians
+  std::string sensor_name;
+  std::string sensor_yaml;    // canonical config (toYaml) the model was made for
+  std::string training_yaml;  // YAML map: data, schedule, wall time ("{}" untrained)
+  std::string metrics_yaml;   // YAML map: validation figures ("{}" none)
+  std::string created_utc;
+};
+
+// Metadata of a fresh model for a sensor.
+ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch);
+
+std::string metadataToYaml(const ModelMetadata& meta);
+// Throws ModelError naming `origin` and the bad key.
+ModelMetadata metadataFromYaml(const std::string& yaml_text, const std::string& origin);
+
+// Throws ModelError when `config` is not the sensor the model was made for
+// (detector format, mask layout, optics path, sub-FOV classes).
+void checkSensorCompatible(const ModelMetadata& meta, const SensorConfig& config, const std::string& origin);
+
+}  // namespace dss

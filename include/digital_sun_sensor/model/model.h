@@ -1,0 +1,51 @@
+// An SSCNN model: network + metadata, the model file (atomic save, validated
+// load) and decoding of network outputs into angles, variances and classes.
+//
+// File layout (little-endian): "DSSMODEL", u32 version, u32 reserved,
+// u64 metadata bytes, u64 weight bytes, metadata YAML, weights (torch
+// archive of every parameter and buffer by name), u64 FNV-1a of all before.
+#pragma once
+
+#include "digital_sun_sensor/model/metadata.h"
+#include "digital_sun_sensor/model/sscnn.h"
+
+#include <opencv2/core.hpp>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace dss {
+
+struct Prediction {
+  double alpha_rad = 0.0;
+  double beta_rad = 0.0;
+  double alpha_variance_rad2 = 0.0;
+  double beta_variance_rad2 = 0.0;
+  int subfov_class = -1;
+  double class_probability = 0.0;
+  int active_sites = 0;
+};
+
+struct Model {
+  ModelMetadata meta;
+  std::shared_ptr<SscnnNetImpl> net;
+
+  // Inference on a batch of sensor images (eval mode, no autograd).
+  std::vector<Prediction> predict(const std::vector<cv::Mat>& images) const;
+  std::vector<Prediction> decode(const SscnnOutput& out, const sparse::SiteSet& sites) const;
+};
+
+// A freshly initialised model for a sensor; seeds torch's generator with `seed`.
+Model createModel(const SensorConfig& config, const std::string& arch_name, std::uint64_t seed = 1);
+
+std::string serializeModel(const Model& model);
+void saveModel(const Model& model, const std::string& path);  // atomic (temp file + rename)
+
+// Validates magic, version, lengths, checksum, metadata, architecture and
+// every tensor's name and shape; with `expected`, also that it is the sensor
+// the model was made for. Throws ModelError naming the file and the problem.
+Model loadModel(const std::string& path, const SensorConfig* expected = nullptr);
+Model deserializeModel(const std::string& bytes, const std::string& origin, const SensorConfig* expected = nullptr);
+
+}  // namespace dss

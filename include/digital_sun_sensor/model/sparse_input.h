@@ -1,0 +1,21 @@
+// Sensor images -> the SSCNN's sparse input batch (features: value, x, y).
+#pragma once
+
+#include "digital_sun_sensor/model/input_spec.h"
+#include "digital_sun_sensor/sparse/sparse_tensor.h"
+
+#include <vector>
+
+namespace dss {
+
+// Active sites are the pixels above spec.threshold_dn (the brightest
+// spec.max_sites per image), in row-major order per image. Coordinates are
+// scaled to [-1, 1] across the detector. Throws std::invalid_argument naming
+// the image and the problem when an image disagrees with the spec.
+sparse::SparseTensor encodeImages(const std::vector<cv::Mat>& images, const InputSpec& spec,
+                                  torch::Dtype dtype = torch::kFloat);
+
+// Dense [batch, 3, H, W] equivalent of encodeImages (zeros at inactive pixels).
+torch::Tensor encodeImagesDense(const std::vector<cv::Mat>& images, const InputSpec& spec);
+
+}  // namespace dss

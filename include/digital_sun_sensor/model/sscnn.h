@@ -1,0 +1,72 @@
+// The SSCNN: a sparse ResNet backbone (strided sparse stem, sparse max pool,
+// submanifold residual stages with strided downsampling) and a head that reads
+// per-image average and max pooled features plus a learned intensity-weighted
+// centroid of the input sites, and outputs (alpha, beta), a log-variance per
+// axis and sub-FOV class logits. Outputs are normalized; Model decodes them.
+#pragma once
+
+#include "digital_sun_sensor/model/arch.h"
+#include "digital_sun_sensor/sparse/sparse_tensor.h"
+
+#include <torch/nn/module.h>
+#include <torch/nn/modules/batchnorm.h>
+#include <torch/nn/modules/linear.h>
+
+namespace dss {
+
+// Submanifold (stride 1, output sites = input sites) or strided sparse
+// convolution; weight [k*k, C_in, C_out].
+class SparseConvImpl : public torch::nn::Module {
+ public:
+  SparseConvImpl(int in_channels, int out_channels, int kernel_size, int stride, bool bias);
+  sparse::SparseTensor forward(const sparse::SparseTensor& x);
+  // Same weights as a dense torch::conv2d over a [B, C, H, W] map.
+  torch::Tensor forwardDense(const torch::Tensor& x);
+  // 1x1 stride-s shortcut on the sites of the k x k stride-s main path.
+  sparse::SparseTensor forwardShortcut(const sparse::SparseTensor& x, int main_kernel_size);
+
+  torch::Tensor weight, bias;
+  int kernel_size, stride;
+};
+
+class ResidualBlockImpl : public torch::nn::Module {
+ public:
+  ResidualBlockImpl(int in_channels, int out_channels, int stride, bool batch_norm);
+  sparse::SparseTensor forward(const sparse::SparseTensor& x);
+  torch::Tensor forwardDense(const torch::Tensor& x);
+
+ private:
+  torch::Tensor norm(torch::nn::BatchNorm1d& bn, const torch::Tensor& f);
+  torch::Tensor normDense(torch::nn::BatchNorm1d& bn, const torch::Tensor& f);
+  std::shared_ptr<SparseConvImpl> conv1_, conv2_, shortcut_;
+  torch::nn::BatchNorm1d bn1_{nullptr}, bn2_{nullptr};
+  int stride_;
+};
+
+// Raw network outputs, normalized units.
+struct SscnnOutput {
+  torch::Tensor angles;        // [B, 2] (alpha, beta) / angle scale
+  torch::Tensor log_variance;  // [B, 2] of the normalized angles
+  torch::Tensor class_logits;  // [B, num_classes]
+};
+
+class SscnnNetImpl : public torch::nn::Module {
+ public:
+  explicit SscnnNetImpl(const ArchSpec& arch);
+  SscnnOutput forward(const sparse::SparseTensor& input);
+  // The same layers and weights evaluated densely (torch::conv2d over the whole
+  // [B, 3, H, W] image), for the sparse-vs-dense benchmark.
+  SscnnOutput forwardDense(const torch::Tensor& input);
+  const ArchSpec& arch() const { return arch_; }
+  std::int64_t parameterCount() const;
+
+ private:
+  SscnnOutput head(const torch::Tensor& pooled, const torch::Tensor& centroid);
+  ArchSpec arch_;
+  std::shared_ptr<SparseConvImpl> stem_, centroid_conv1_, centroid_conv2_;
+  std::vector<std::shared_ptr<ResidualBlockImpl>> blocks_;
+  std::vector<torch::nn::Linear> mlp_;
+  torch::nn::Linear output_{nullptr}, centroid_skip_{nullptr};
+};
+
+}  // namespace dss

@@ -1,0 +1,54 @@
+#include "digital_sun_sensor/model/arch.h"
+
+#include <stdexcept>
+
+namespace dss {
+
+void ArchSpec::validate() const {
+  auto fail = [&](const std::string& what) { throw std::invalid_argument("architecture '" + name + "': " + what); };
+  if (input_channels != 3) fail("input_channels must be 3 (value, x, y)");
+  if (stem_width < 1) fail("stem_width must be positive");
+  if (stem_kernel < 1 || stem_kernel % 2 == 0) fail("stem_kernel must be odd and positive");
+  if (blocks.empty() || blocks.size() != widths.size()) fail("blocks and widths must be non-empty and of equal length");
+  for (std::size_t i = 0; i < blocks.size(); ++i) {
+    if (blocks[i] < 1) fail("every stage needs at least one block");
+    if (widths[i] < 1) fail("widths must be positive");
+  }
+  if (centroid_pool && centroid_width < 1) fail("centroid_width must be positive");
+  for (int h : head_hidden)
+    if (h < 1) fail("head_hidden sizes must be positive");
+  if (num_classes < 1) fail("num_classes must be positive");
+}
+
+ArchSpec archPreset(const std::string& name, int num_classes) {
+  ArchSpec a;
+  a.name = name;
+  a.num_classes = num_classes;
+  if (name == "resnet34") {
+    // defaults above: the published layout
+  } else if (name == "resnet18") {
+    a.blocks = {2, 2, 2, 2};
+  } else if (name == "resnet18_w32") {
+    a.blocks = {2, 2, 2, 2};
+    a.stem_width = 32;
+    a.widths = {32, 64, 128, 256};
+    a.head_hidden = {128, 128};
+  } else if (name == "resnet10_w16") {
+    a.blocks = {1, 1, 1, 1};
+    a.stem_width = 16;
+    a.widths = {16, 32, 64, 128};
+    a.head_hidden = {64, 64};
+  } else {
+    std::string names;
+    for (const auto& n : archPresetNames()) names += (names.empty() ? "" : ", ") + n;
+    throw std::invalid_argument("unknown architecture '" + name + "' (available: " + names + ")");
+  }
+  a.validate();
+  return a;
+}
+
+std::vector<std::string> archPresetNames() { return {"resnet34", "resnet18", "resnet18_w32", "resnet10_w16"}; }
+
+std::string defaultArchName() { return "resnet18_w32"; }
+
+}  // namespace dss

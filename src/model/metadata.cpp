@@ -1,0 +1,185 @@
+#include "digital_sun_sensor/model/metadata.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <ctime>
+#include <sstream>
+
+namespace dss {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+std::string utcNow() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buf;
+}
+
+// A YAML map given as text, checked and re-emitted inline in the metadata.
+YAML::Node mapFromText(const std::string& text, const std::string& what) {
+  YAML::Node node = YAML::Load(text.empty() ? "{}" : text);
+  if (!node.IsMap()) throw ModelError(what + " must be a YAML map");
+  return node;
+}
+
+template <typename T>
+T get(const YAML::Node& parent, const std::string& key, const std::string& origin, const std::string& path) {
+  const YAML::Node n = parent[key];
+  if (!n) throw ModelError(origin + ": metadata key '" + path + key + "' is missing");
+  try {
+    return n.as<T>();
+  } catch (const YAML::Exception&) {
+    throw ModelError(origin + ": metadata key '" + path + key + "' has the wrong type");
+  }
+}
+
+}  // namespace
+
+ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch) {
+  ModelMetadata m;
+  m.arch = arch;
+  m.arch.num_classes = config.numSubFovClasses();
+  m.arch.validate();
+  m.input = inputSpecFor(config);
+  m.angle_scale_rad = std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg) * kPi / 180.0;
+  m.sensor_name = config.name;
+  m.sensor_yaml = toYaml(config);
+  m.training_yaml = "{}";
+  m.metrics_yaml = "{}";
+  m.created_utc = utcNow();
+  return m;
+}
+
+std::string metadataToYaml(const ModelMetadata& m) {
+  YAML::Emitter e;
+  e << YAML::BeginMap;
+  e << YAML::Key << "format" << YAML::Value << "digital_sun_sensor SSCNN model";
+  e << YAML::Key << "created_utc" << YAML::Value << m.created_utc;
+  e << YAML::Key << "arch" << YAML::Value << YAML::BeginMap;
+  e << YAML::Key << "name" << YAML::Value << m.arch.name;
+  e << YAML::Key << "input_channels" << YAML::Value << m.arch.input_channels;
+  e << YAML::Key << "stem_width" << YAML::Value << m.arch.stem_width;
+  e << YAML::Key << "stem_kernel" << YAML::Value << m.arch.stem_kernel;
+  e << YAML::Key << "stem_max_pool" << YAML::Value << m.arch.stem_max_pool;
+  e << YAML::Key << "blocks" << YAML::Value << YAML::Flow << m.arch.blocks;
+  e << YAML::Key << "widths" << YAML::Value << YAML::Flow << m.arch.widths;
+  e << YAML::Key << "batch_norm" << YAML::Value << m.arch.batch_norm;
+  e << YAML::Key << "centroid_pool" << YAML::Value << m.arch.centroid_pool;
+  e << YAML::Key << "centroid_width" << YAML::Value << m.arch.centroid_width;
+  e << YAML::Key << "head_hidden" << YAML::Value << YAML::Flow << m.arch.head_hidden;
+  e << YAML::Key << "num_classes" << YAML::Value << m.arch.num_classes;
+  e << YAML::EndMap;
+  e << YAML::Key << "input" << YAML::Value << YAML::BeginMap;
+  e << YAML::Key << "features" << YAML::Value << YAML::Flow << std::vector<std::string>{"value", "x", "y"};
+  e << YAML::Key << "width_px" << YAML::Value << m.input.width_px;
+  e << YAML::Key << "height_px" << YAML::Value << m.input.height_px;
+  e << YAML::Key << "max_code" << YAML::Value << m.input.max_code;
+  e << YAML::Key << "black_level_dn" << YAML::Value << m.input.black_level_dn;
+  e << YAML::Key << "threshold_dn" << YAML::Value << m.input.threshold_dn;
+  e << YAML::Key << "max_sites" << YAML::Value << m.input.max_sites;
+  e << YAML::EndMap;
+  e << YAML::Key << "angle_scale_rad" << YAML::Value << m.angle_scale_rad;
+  e << YAML::Key << "sensor_name" << YAML::Value << m.sensor_name;
+  e << YAML::Key << "training" << YAML::Value << mapFromText(m.training_yaml, "training summary");
+  e << YAML::Key << "metrics" << YAML::Value << mapFromText(m.metrics_yaml, "metrics");
+  e << YAML::Key << "sensor" << YAML::Value << YAML::Literal << m.sensor_yaml;
+  e << YAML::EndMap;
+  return e.c_str();
+}
+
+ModelMetadata metadataFromYaml(const std::string& text, const std::string& origin) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw ModelError(origin + ": metadata is not valid YAML: " + e.what());
+  }
+  if (!root.IsMap()) throw ModelError(origin + ": metadata is not a YAML map");
+  ModelMetadata m;
+  m.created_utc = get<std::string>(root, "created_utc", origin, "");
+  const YAML::Node a = root["arch"];
+  if (!a || !a.IsMap()) throw ModelError(origin + ": metadata key 'arch' is missing");
+  m.arch.name = get<std::string>(a, "name", origin, "arch.");
+  m.arch.input_channels = get<int>(a, "input_channels", origin, "arch.");
+  m.arch.stem_width = get<int>(a, "stem_width", origin, "arch.");
+  m.arch.stem_kernel = get<int>(a, "stem_kernel", origin, "arch.");
+  m.arch.stem_max_pool = get<bool>(a, "stem_max_pool", origin, "arch.");
+  m.arch.blocks = get<std::vector<int>>(a, "blocks", origin, "arch.");
+  m.arch.widths = get<std::vector<int>>(a, "widths", origin, "arch.");
+  m.arch.batch_norm = get<bool>(a, "batch_norm", origin, "arch.");
+  m.arch.centroid_pool = get<bool>(a, "centroid_pool", origin, "arch.");
+  m.arch.centroid_width = get<int>(a, "centroid_width", origin, "arch.");
+  m.arch.head_hidden = get<std::vector<int>>(a, "head_hidden", origin, "arch.");
+  m.arch.num_classes = get<int>(a, "num_classes", origin, "arch.");
+  try {
+    m.arch.validate();
+  } catch (const std::invalid_argument& e) {
+    throw ModelError(origin + ": " + e.what());
+  }
+  const YAML::Node in = root["input"];
+  if (!in || !in.IsMap()) throw ModelError(origin + ": metadata key 'input' is missing");
+  m.input.width_px = get<int>(in, "width_px", origin, "input.");
+  m.input.height_px = get<int>(in, "height_px", origin, "input.");
+  m.input.max_code = get<int>(in, "max_code", origin, "input.");
+  m.input.black_level_dn = get<double>(in, "black_level_dn", origin, "input.");
+  m.input.threshold_dn = get<double>(in, "threshold_dn", origin, "input.");
+  m.input.max_sites = get<int>(in, "max_sites", origin, "input.");
+  if (m.input.width_px < 1 || m.input.height_px < 1 || m.input.max_code < 1 || m.input.max_sites < 1)
+    throw ModelError(origin + ": metadata 'input' has a non-positive size");
+  m.angle_scale_rad = get<double>(root, "angle_scale_rad", origin, "");
+  if (!(m.angle_scale_rad > 0.0)) throw ModelError(origin + ": metadata 'angle_scale_rad' must be positive");
+  m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
+  m.sensor_yaml = get<std::string>(root, "sensor", origin, "");
+  m.training_yaml = YAML::Dump(root["training"] ? root["training"] : YAML::Node(YAML::NodeType::Map));
+  m.metrics_yaml = YAML::Dump(root["metrics"] ? root["metrics"] : YAML::Node(YAML::NodeType::Map));
+  return m;
+}
+
+void checkSensorCompatible(const ModelMetadata& meta, const SensorConfig& config, const std::string& origin) {
+  SensorConfig trained;
+  try {
+    trained = parseSensorConfig(meta.sensor_yaml, origin + " (embedded sensor config)");
+  } catch (const ConfigError& e) {
+    throw ModelError(e.what());
+  }
+  auto mismatch = [&](const std::string& key, auto model_value, auto sensor_value) {
+    std::ostringstream o;
+    o << origin << ": the model was made for sensor '" << trained.name << "' with " << key << " = " << model_value
+      << ", but sensor '" << config.name << "' has " << sensor_value;
+    throw ModelError(o.str());
+  };
+  auto differs = [](double a, double b, double rel) { return std::abs(a - b) > rel * std::max(std::abs(a), std::abs(b)); };
+  if (trained.detector.width_px != config.detector.width_px)
+    mismatch("detector.width_px", trained.detector.width_px, config.detector.width_px);
+  if (trained.detector.height_px != config.detector.height_px)
+    mismatch("detector.height_px", trained.detector.height_px, config.detector.height_px);
+  if (differs(trained.detector.pitch_um, config.detector.pitch_um, 1e-6))
+    mismatch("detector.pitch_um", trained.detector.pitch_um, config.detector.pitch_um);
+  if (trained.noise.bit_depth != config.noise.bit_depth)
+    mismatch("noise.bit_depth", trained.noise.bit_depth, config.noise.bit_depth);
+  if (trained.threshold.enabled != config.threshold.enabled)
+    mismatch("threshold.enabled", trained.threshold.enabled, config.threshold.enabled);
+  // Within as-built tolerances the same design; beyond 1% another sensor.
+  if (differs(trained.mask.height_mm, config.mask.height_mm, 0.01))
+    mismatch("mask.height_mm", trained.mask.height_mm, config.mask.height_mm);
+  if (trained.mask.apertures.size() != config.mask.apertures.size())
+    mismatch("the number of apertures", trained.mask.apertures.size(), config.mask.apertures.size());
+  for (std::size_t i = 0; i < config.mask.apertures.size(); ++i) {
+    const auto &a = trained.mask.apertures[i], &b = config.mask.apertures[i];
+    if (std::hypot(a.x_um - b.x_um, a.y_um - b.y_um) > 1.0)
+      mismatch("aperture " + std::to_string(i) + " position (um)",
+               "(" + std::to_string(a.x_um) + ", " + std::to_string(a.y_um) + ")",
+               "(" + std::to_string(b.x_um) + ", " + std::to_string(b.y_um) + ")");
+  }
+  if (trained.cover_glass.enabled != config.cover_glass.enabled)
+    mismatch("cover_glass.enabled", trained.cover_glass.enabled, config.cover_glass.enabled);
+  if (trained.numSubFovClasses() != config.numSubFovClasses() || meta.arch.num_classes != config.numSubFovClasses())
+    mismatch("sub-FOV classes", meta.arch.num_classes, config.numSubFovClasses());
+}
+
+}  // namespace dss

@@ -1,0 +1,157 @@
+#include "digital_sun_sensor/model/model.h"
+
+#include "digital_sun_sensor/common/atomic_file.h"
+#include "digital_sun_sensor/model/sparse_input.h"
+
+#include <torch/serialize/input-archive.h>
+#include <torch/serialize/output-archive.h>
+
+#include <cmath>
+#include <cstring>
+#include <sstream>
+
+namespace dss {
+namespace {
+
+constexpr char kMagic[8] = {'D', 'S', 'S', 'M', 'O', 'D', 'E', 'L'};
+constexpr std::uint32_t kVersion = 1;
+constexpr std::size_t kHeaderBytes = 8 + 4 + 4 + 8 + 8;
+
+std::uint64_t fnv1a(const char* data, std::size_t n) {
+  std::uint64_t h = 0xcbf29ce484222325ULL;
+  for (std::size_t i = 0; i < n; ++i) {
+    h ^= static_cast<unsigned char>(data[i]);
+    h *= 0x100000001b3ULL;
+  }
+  return h;
+}
+
+template <typename T>
+void put(std::string& out, T value) {
+  out.append(reinterpret_cast<const char*>(&value), sizeof(T));
+}
+
+template <typename T>
+T take(const std::string& in, std::size_t offset) {
+  T value;
+  std::memcpy(&value, in.data() + offset, sizeof(T));
+  return value;
+}
+
+}  // namespace
+
+Model createModel(const SensorConfig& config, const std::string& arch_name, std::uint64_t seed) {
+  torch::manual_seed(seed);
+  Model m;
+  m.meta = metadataFor(config, archPreset(arch_name, config.numSubFovClasses()));
+  m.net = std::make_shared<SscnnNetImpl>(m.meta.arch);
+  return m;
+}
+
+std::string serializeModel(const Model& model) {
+  const std::string meta = metadataToYaml(model.meta);
+  torch::serialize::OutputArchive archive;
+  for (const auto& p : model.net->named_parameters()) archive.write(p.key(), p.value().detach());
+  for (const auto& b : model.net->named_buffers()) archive.write(b.key(), b.value(), /*is_buffer=*/true);
+  std::ostringstream weights_stream;
+  archive.save_to(weights_stream);
+  const std::string weights = weights_stream.str();
+  std::string out(kMagic, sizeof(kMagic));
+  put<std::uint32_t>(out, kVersion);
+  put<std::uint32_t>(out, 0);
+  put<std::uint64_t>(out, meta.size());
+  put<std::uint64_t>(out, weights.size());
+  out += meta;
+  out += weights;
+  put<std::uint64_t>(out, fnv1a(out.data(), out.size()));
+  return out;
+}
+
+void saveModel(const Model& model, const std::string& path) { writeFileAtomic(path, serializeModel(model)); }
+
+Model loadModel(const std::string& path, const SensorConfig* expected) {
+  std::string bytes;
+  try {
+    bytes = readFile(path);
+  } catch (const std::runtime_error& e) {
+    throw ModelError(std::string("model file: ") + e.what());
+  }
+  return deserializeModel(bytes, "model file '" + path + "'", expected);
+}
+
+Model deserializeModel(const std::string& bytes, const std::string& origin, const SensorConfig* expected) {
+  if (bytes.size() < kHeaderBytes + 8 || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
+    throw ModelError(origin + ": not a digital_sun_sensor model (bad magic or too short: " +
+                     std::to_string(bytes.size()) + " bytes)");
+  const auto version = take<std::uint32_t>(bytes, 8);
+  if (version != kVersion)
+    throw ModelError(origin + ": format version " + std::to_string(version) + " (this build reads " +
+                     std::to_string(kVersion) + ")");
+  const auto meta_bytes = take<std::uint64_t>(bytes, 16), weight_bytes = take<std::uint64_t>(bytes, 24);
+  const std::uint64_t expected_size = kHeaderBytes + meta_bytes + weight_bytes + 8;
+  if (meta_bytes > bytes.size() || weight_bytes > bytes.size() || expected_size != bytes.size())
+    throw ModelError(origin + ": truncated or padded: " + std::to_string(bytes.size()) + " bytes, header says " +
+                     std::to_string(expected_size));
+  if (fnv1a(bytes.data(), bytes.size() - 8) != take<std::uint64_t>(bytes, bytes.size() - 8))
+    throw ModelError(origin + ": checksum mismatch (the file is corrupt)");
+
+  Model m;
+  m.meta = metadataFromYaml(bytes.substr(kHeaderBytes, meta_bytes), origin);
+  if (expected) checkSensorCompatible(m.meta, *expected, origin);
+  m.net = std::make_shared<SscnnNetImpl>(m.meta.arch);
+
+  torch::serialize::InputArchive archive;
+  try {
+    std::istringstream weights(bytes.substr(kHeaderBytes + meta_bytes, weight_bytes));
+    archive.load_from(weights);
+  } catch (const c10::Error& e) {
+    throw ModelError(origin + ": weights are unreadable: " + e.what_without_backtrace());
+  }
+  torch::NoGradGuard no_grad;
+  auto restore = [&](const std::string& name, torch::Tensor& target, bool is_buffer) {
+    torch::Tensor stored;
+    if (!archive.try_read(name, stored, is_buffer))
+      throw ModelError(origin + ": tensor '" + name + "' of architecture '" + m.meta.arch.name + "' is missing");
+    if (stored.sizes() != target.sizes() || stored.scalar_type() != target.scalar_type()) {
+      std::ostringstream o;
+      o << origin << ": tensor '" << name << "' has shape " << stored.sizes() << ", architecture '"
+        << m.meta.arch.name << "' needs " << target.sizes();
+      throw ModelError(o.str());
+    }
+    target.copy_(stored);
+  };
+  for (auto& p : m.net->named_parameters()) restore(p.key(), p.value(), false);
+  for (auto& b : m.net->named_buffers()) restore(b.key(), b.value(), true);
+  m.net->eval();
+  return m;
+}
+
+std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::SiteSet& sites) const {
+  const auto angles = out.angles.detach().to(torch::kDouble).contiguous();
+  const auto log_var = out.log_variance.detach().to(torch::kDouble).contiguous();
+  const auto probs = torch::softmax(out.class_logits.detach().to(torch::kDouble), 1).contiguous();
+  const auto counts = sites.countsPerImage();
+  const double s = meta.angle_scale_rad;
+  std::vector<Prediction> result(static_cast<std::size_t>(angles.size(0)));
+  for (std::size_t b = 0; b < result.size(); ++b) {
+    Prediction& p = result[b];
+    const auto i = static_cast<std::int64_t>(b);
+    p.alpha_rad = angles[i][0].item<double>() * s;
+    p.beta_rad = angles[i][1].item<double>() * s;
+    p.alpha_variance_rad2 = std::exp(log_var[i][0].item<double>()) * s * s;
+    p.beta_variance_rad2 = std::exp(log_var[i][1].item<double>()) * s * s;
+    const auto best = probs[i].argmax().item<std::int64_t>();
+    p.subfov_class = static_cast<int>(best);
+    p.class_probability = probs[i][best].item<double>();
+    p.active_sites = counts[b];
+  }
+  return result;
+}
+
+std::vector<Prediction> Model::predict(const std::vector<cv::Mat>& images) const {
+  torch::NoGradGuard no_grad;
+  const auto input = encodeImages(images, meta.input);
+  return decode(net->forward(input), *input.sites);
+}
+
+}  // namespace dss

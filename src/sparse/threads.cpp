@@ -1,0 +1,24 @@
+#include "digital_sun_sensor/sparse/threads.h"
+
+#include <ATen/Parallel.h>
+#include <openblas-pthread/cblas.h>
+
+#include <algorithm>
+#include <stdexcept>
+
+namespace dss::sparse {
+
+void configureThreads(int aten_threads, int blas_threads) {
+  if (aten_threads < 1 || blas_threads < 1)
+    throw std::invalid_argument("thread counts must be at least 1 (aten " + std::to_string(aten_threads) +
+                                ", blas " + std::to_string(blas_threads) + ")");
+  at::set_num_threads(aten_threads);
+  at::set_num_interop_threads(1);
+  openblas_set_num_threads(blas_threads);
+}
+
+std::string threadSummary() {
+  return "aten=" + std::to_string(at::get_num_threads()) + " blas=" + std::to_string(openblas_get_num_threads());
+}
+
+}  // namespace dss::sparse

@@ -1,0 +1,178 @@
+// SSCNN model: batch independence, save/load round trip, rejected files,
+// and a tiny network that overfits simulated images.
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sparse_input.h"
+#include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sparse/threads.h"
+
+#include <gtest/gtest.h>
+#include <torch/optim/adam.h>
+
+#include <cstdio>
+#include <fstream>
+
+namespace dss {
+namespace {
+
+SensorConfig shipped(const std::string& name) {
+  return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml");
+}
+
+// A few simulated thesis_sa images (shared by the tests: rendering warms a cache).
+const std::vector<DatasetItem>& images() {
+  static const std::vector<DatasetItem> items = [] {
+    DatasetSpec spec;
+    spec.count = 8;
+    spec.seed = 5;
+    std::vector<DatasetItem> out;
+    DatasetGenerator(shipped("thesis_sa"), spec).run([&](const DatasetItem& i) { out.push_back(i); });
+    return out;
+  }();
+  return items;
+}
+
+std::vector<cv::Mat> imageList() {
+  std::vector<cv::Mat> list;
+  for (const auto& i : images()) list.push_back(i.image);
+  return list;
+}
+
+std::string expectModelError(const std::string& bytes, const SensorConfig* expected = nullptr) {
+  try {
+    deserializeModel(bytes, "test.dssmodel", expected);
+  } catch (const ModelError& e) {
+    return e.what();
+  }
+  ADD_FAILURE() << "accepted a bad model file";
+  return {};
+}
+
+bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
+
+TEST(SparseInput, EncodesThresholdedImage) {
+  const SensorConfig c = shipped("thesis_sa");
+  const InputSpec spec = inputSpecFor(c);
+  const auto input = encodeImages(imageList(), spec);
+  ASSERT_EQ(input.sites->batchSize(), 8);
+  for (int n : input.sites->countsPerImage()) EXPECT_GT(n, 20);
+  EXPECT_LE(input.features.slice(1, 0, 1).max().item<float>(), 1.0f);
+  EXPECT_GT(input.features.slice(1, 0, 1).min().item<float>(), 0.0f);
+  EXPECT_LE(input.features.slice(1, 1, 3).abs().max().item<float>(), 1.0f);
+  InputSpec few = spec;
+  few.max_sites = 10;
+  for (int n : encodeImages(imageList(), few).sites->countsPerImage()) EXPECT_EQ(n, 10);
+  cv::Mat wrong(256, 512, CV_8U, cv::Scalar(0));
+  try {
+    encodeImages({images()[0].image, wrong}, spec);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_TRUE(contains(e.what(), "image 1 of the batch: image is 512x256 px but the sensor has 512x512")) << e.what();
+  }
+  EXPECT_THROW(encodeImages({cv::Mat(512, 512, CV_32F)}, spec), std::invalid_argument);
+}
+
+TEST(Sscnn, BatchOfDifferentSiteCountsEqualsSingleImages) {
+  const SensorConfig c = shipped("thesis_sa");
+  Model m = createModel(c, "resnet10_w16", 3);
+  m.net->eval();
+  m.net->to(torch::kDouble);
+  const cv::Mat empty(512, 512, CV_8U, cv::Scalar(0));
+  cv::Mat one = empty.clone();
+  one.at<std::uint8_t>(0, 511) = 200;  // a single site on the border
+  const std::vector<cv::Mat> batch{images()[0].image, empty, one, images()[1].image};
+  torch::NoGradGuard no_grad;
+  const auto together = m.net->forward(encodeImages(batch, m.meta.input, torch::kDouble));
+  for (std::size_t b = 0; b < batch.size(); ++b) {
+    const auto alone = m.net->forward(encodeImages({batch[b]}, m.meta.input, torch::kDouble));
+    const auto i = static_cast<std::int64_t>(b);
+    EXPECT_LT((together.angles[i] - alone.angles[0]).abs().max().item<double>(), 1e-12) << b;
+    EXPECT_LT((together.class_logits[i] - alone.class_logits[0]).abs().max().item<double>(), 1e-12) << b;
+    EXPECT_TRUE(torch::isfinite(alone.log_variance).all().item<bool>()) << b;
+  }
+}
+
+TEST(ModelFile, RoundTripIsBitExact) {
+  const SensorConfig c = shipped("thesis_sa");
+  const Model m = createModel(c, "resnet10_w16", 4);
+  m.net->eval();
+  const std::string path = ::testing::TempDir() + "/roundtrip.dssmodel";
+  saveModel(m, path);
+  const Model loaded = loadModel(path, &c);
+  EXPECT_EQ(loaded.meta.arch.name, "resnet10_w16");
+  EXPECT_EQ(loaded.meta.sensor_name, "thesis_sa");
+  EXPECT_EQ(loaded.meta.input.threshold_dn, m.meta.input.threshold_dn);
+  torch::NoGradGuard no_grad;
+  const auto input = encodeImages(imageList(), m.meta.input);
+  const auto a = m.net->forward(input), b = loaded.net->forward(input);
+  EXPECT_TRUE(torch::equal(a.angles, b.angles));
+  EXPECT_TRUE(torch::equal(a.log_variance, b.log_variance));
+  EXPECT_TRUE(torch::equal(a.class_logits, b.class_logits));
+  // Saving over an existing file leaves no temp file behind.
+  saveModel(loaded, path);
+  std::ifstream tmp(path + ".tmp." + std::to_string(::getpid()));
+  EXPECT_FALSE(tmp.good());
+  std::remove(path.c_str());
+}
+
+TEST(ModelFile, RejectsCorruptTruncatedWrongArchitectureAndWrongSensor) {
+  const SensorConfig c = shipped("thesis_sa");
+  const Model m = createModel(c, "resnet10_w16");
+  const std::string good = serializeModel(m);
+  EXPECT_NO_THROW(deserializeModel(good, "good", &c));
+
+  EXPECT_TRUE(contains(expectModelError(""), "bad magic or too short"));
+  EXPECT_TRUE(contains(expectModelError("not a model at all, just some text to fill forty bytes"), "bad magic"));
+  EXPECT_TRUE(contains(expectModelError(good.substr(0, good.size() / 2)), "truncated"));
+  EXPECT_TRUE(contains(expectModelError(good + "x"), "truncated or padded"));
+  std::string flipped = good;
+  flipped[flipped.size() / 2] ^= 0x40;
+  EXPECT_TRUE(contains(expectModelError(flipped), "checksum mismatch"));
+
+  // Metadata says resnet10_w16, weights are another architecture's.
+  Model mixed = m;
+  mixed.net = createModel(c, "resnet18_w32").net;
+  EXPECT_TRUE(contains(expectModelError(serializeModel(mixed)), "tensor 'stem.weight' has shape"));
+
+  // A model for thesis_sa refuses wide_ma (and thesis_ma).
+  const SensorConfig wide = shipped("wide_ma");
+  EXPECT_TRUE(contains(expectModelError(good, &wide), "made for sensor 'thesis_sa'"));
+  const SensorConfig ma = shipped("thesis_ma");
+  EXPECT_TRUE(contains(expectModelError(good, &ma), "number of apertures"));
+
+  EXPECT_THROW(loadModel("/nonexistent/dir/model.dssmodel"), ModelError);
+  EXPECT_THROW(createModel(c, "resnet99"), std::invalid_argument);
+}
+
+TEST(Sscnn, TinyNetworkOverfitsSimulatedImages) {
+  sparse::configureThreads(1, 2);
+  const SensorConfig c = shipped("thesis_sa");
+  Model m = createModel(c, "resnet10_w16", 7);
+  m.net->train();
+  const auto input = encodeImages(imageList(), m.meta.input);
+  std::vector<float> target_values;
+  std::vector<std::int64_t> classes;
+  for (const auto& i : images()) {
+    target_values.push_back(static_cast<float>(i.truth.alpha_rad / m.meta.angle_scale_rad));
+    target_values.push_back(static_cast<float>(i.truth.beta_rad / m.meta.angle_scale_rad));
+    classes.push_back(i.truth.subfov_class);
+  }
+  const auto target = torch::tensor(target_values).view({-1, 2});
+  const auto target_class = torch::tensor(classes);
+  torch::optim::Adam optimizer(m.net->parameters(), torch::optim::AdamOptions(2e-3));
+  auto loss_of = [&](const SscnnOutput& out) {
+    return torch::mse_loss(out.angles, target) + 0.01 * torch::cross_entropy_loss(out.class_logits, target_class);
+  };
+  double first = 0, last = 0;
+  for (int step = 0; step < 400; ++step) {
+    optimizer.zero_grad();
+    auto loss = loss_of(m.net->forward(input));
+    if (step == 0) first = loss.item<double>();
+    loss.backward();
+    optimizer.step();
+    last = loss.item<double>();
+  }
+  EXPECT_LT(last, first / 100.0) << "loss " << first << " -> " << last;
+}
+
+}  // namespace
+}  // namespace dss
