@@ -37,8 +37,7 @@ inline void expectGradientsMatch(const std::function<torch::Tensor(const std::ve
       const double numeric = (eval(saved + eps) - eval(saved - eps)) / (2 * eps);
       flat[i] = saved;
       const double a = analytic.view({-1})[i].item<double>();
-      ASSERT_NEAR(a, numeric, tolerance * std::max(1.0, std::abs(numeric)))
-          << "input " << k << " element " << i;
+      ASSERT_NEAR(a, numeric, tolerance * std::max(1.0, std::abs(numeric))) << "input " << k << " element " << i;
     }
   }
 }

@@ -1,15 +1,15 @@
 // SSCNN model: batch independence, save/load round trip, rejected files,
 // and a tiny network that overfits simulated images.
-#include "digital_sun_sensor/model/model.h"
-#include "digital_sun_sensor/model/sparse_input.h"
-#include "digital_sun_sensor/sim/dataset_generator.h"
-#include "digital_sun_sensor/sparse/threads.h"
-
 #include <gtest/gtest.h>
 #include <torch/optim/adam.h>
 
 #include <cstdio>
 #include <fstream>
+
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sparse_input.h"
+#include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sparse/threads.h"
 
 namespace dss {
 namespace {

@@ -1,14 +1,13 @@
 // Sparse engine: rulebooks, gradient checks of every op, sparse = dense at the
 // active sites, edge cases.
-#include "gradcheck.h"
-
-#include "digital_sun_sensor/common/random.h"
-#include "digital_sun_sensor/sparse/ops.h"
-
 #include <torch/nn/functional/conv.h>
 #include <torch/nn/functional/pooling.h>
 
 #include <set>
+
+#include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/sparse/ops.h"
+#include "gradcheck.h"
 
 namespace dss::sparse {
 using dss::test::expectGradientsMatch;
@@ -98,35 +97,42 @@ TEST(Rulebook, RejectsBadGeometry) {
 
 TEST(SparseVsDense, SubmanifoldConvEqualsDenseAtActiveSites) {
   torch::manual_seed(1);
-  for (int k : {1, 3, 5}) {
-    auto sites = randomSites(2, 11, 13, 40, 7);
-    auto rb = submanifoldRulebook(sites, k);
-    auto x = torch::randn({sites->size(), 3}, torch::kDouble);
-    auto w = torch::randn({k * k, 3, 4}, torch::kDouble);
-    auto sparse_out = sparseConv(x, w, *rb);
-    auto dense_out = F::conv2d(toDense(x, *sites), denseWeight(w, k), F::Conv2dFuncOptions().padding(k / 2));
-    EXPECT_LT((sparse_out - atSites(dense_out, *sites)).abs().max().item<double>(), 1e-12) << "k=" << k;
-  }
+  // 3 input channels: one im2col GEMM; 40: a GEMM per kernel offset.
+  for (int c_in : {3, 40})
+    for (int k : {1, 3, 5}) {
+      auto sites = randomSites(2, 11, 13, 40, 7);
+      auto rb = submanifoldRulebook(sites, k);
+      auto x = torch::randn({sites->size(), c_in}, torch::kDouble);
+      auto w = torch::randn({k * k, c_in, 4}, torch::kDouble);
+      auto sparse_out = sparseConv(x, w, *rb);
+      auto dense_out = F::conv2d(toDense(x, *sites), denseWeight(w, k), F::Conv2dFuncOptions().padding(k / 2));
+      EXPECT_LT((sparse_out - atSites(dense_out, *sites)).abs().max().item<double>(), 1e-12) << "k=" << k;
+    }
 }
 
 TEST(SparseVsDense, StridedConvEqualsDenseOnItsSites) {
   torch::manual_seed(2);
-  struct Geometry { int k, s, p; };
-  for (const Geometry g : {Geometry{3, 2, 1}, Geometry{7, 2, 3}, Geometry{2, 2, 0}, Geometry{1, 2, 0}}) {
-    auto sites = randomSites(2, 16, 15, 30, 11);
-    auto rb = stridedRulebook(sites, g.k, g.s, g.p);
-    auto x = torch::randn({sites->size(), 2}, torch::kDouble);
-    auto w = torch::randn({g.k * g.k, 2, 3}, torch::kDouble);
-    auto sparse_out = sparseConv(x, w, *rb);
-    auto dense_out = F::conv2d(toDense(x, *sites), denseWeight(w, g.k), F::Conv2dFuncOptions().stride(g.s).padding(g.p));
-    ASSERT_EQ(dense_out.size(2), rb->output->height());
-    ASSERT_EQ(dense_out.size(3), rb->output->width());
-    EXPECT_LT((sparse_out - atSites(dense_out, *rb->output)).abs().max().item<double>(), 1e-12) << "k=" << g.k;
-    // Its sites are exactly those whose receptive field holds an active input.
-    auto reach = F::conv2d(toDense(torch::ones({sites->size(), 1}, torch::kDouble), *sites),
-                           torch::ones({1, 1, g.k, g.k}, torch::kDouble), F::Conv2dFuncOptions().stride(g.s).padding(g.p));
-    EXPECT_EQ((reach > 0).sum().item<std::int64_t>(), rb->output->size()) << "k=" << g.k;
-  }
+  struct Geometry {
+    int k, s, p;
+  };
+  for (int c_in : {2, 40})
+    for (const Geometry g : {Geometry{3, 2, 1}, Geometry{7, 2, 3}, Geometry{2, 2, 0}, Geometry{1, 2, 0}}) {
+      auto sites = randomSites(2, 16, 15, 30, 11);
+      auto rb = stridedRulebook(sites, g.k, g.s, g.p);
+      auto x = torch::randn({sites->size(), c_in}, torch::kDouble);
+      auto w = torch::randn({g.k * g.k, c_in, 3}, torch::kDouble);
+      auto sparse_out = sparseConv(x, w, *rb);
+      auto dense_out =
+          F::conv2d(toDense(x, *sites), denseWeight(w, g.k), F::Conv2dFuncOptions().stride(g.s).padding(g.p));
+      ASSERT_EQ(dense_out.size(2), rb->output->height());
+      ASSERT_EQ(dense_out.size(3), rb->output->width());
+      EXPECT_LT((sparse_out - atSites(dense_out, *rb->output)).abs().max().item<double>(), 1e-12) << "k=" << g.k;
+      // Its sites are exactly those whose receptive field holds an active input.
+      auto reach =
+          F::conv2d(toDense(torch::ones({sites->size(), 1}, torch::kDouble), *sites),
+                    torch::ones({1, 1, g.k, g.k}, torch::kDouble), F::Conv2dFuncOptions().stride(g.s).padding(g.p));
+      EXPECT_EQ((reach > 0).sum().item<std::int64_t>(), rb->output->size()) << "k=" << g.k;
+    }
 }
 
 TEST(SparseVsDense, ShortcutIsDenseOneByOneStrideTwo) {
@@ -173,16 +179,18 @@ TEST(GradCheck, SubmanifoldConv) {
   torch::manual_seed(6);
   auto sites = randomSites(2, 7, 6, 14, 3);
   auto rb = submanifoldRulebook(sites, 3);
-  expectGradientsMatch([&](const auto& in) { return sparseConv(in[0], in[1], *rb); },
-                       {torch::randn({sites->size(), 2}), torch::randn({9, 2, 3})});
+  for (int c_in : {2, 30})  // im2col and per-offset GEMM paths
+    expectGradientsMatch([&](const auto& in) { return sparseConv(in[0], in[1], *rb); },
+                         {torch::randn({sites->size(), c_in}), torch::randn({9, c_in, 3})});
 }
 
 TEST(GradCheck, StridedConv) {
   torch::manual_seed(7);
   auto sites = randomSites(2, 9, 8, 16, 4);
   auto rb = stridedRulebook(sites, 3, 2, 1);
-  expectGradientsMatch([&](const auto& in) { return sparseConv(in[0], in[1], *rb); },
-                       {torch::randn({sites->size(), 2}), torch::randn({9, 2, 3})});
+  for (int c_in : {2, 30})
+    expectGradientsMatch([&](const auto& in) { return sparseConv(in[0], in[1], *rb); },
+                         {torch::randn({sites->size(), c_in}), torch::randn({9, c_in, 3})});
   auto shortcut = singleOffsetRulebook(*rb, 4);
   expectGradientsMatch([&](const auto& in) { return sparseConv(in[0], in[1], *shortcut); },
                        {torch::randn({sites->size(), 2}), torch::randn({1, 2, 3})});

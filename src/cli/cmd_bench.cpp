@@ -68,13 +68,16 @@ int benchSim(int argc, char** argv) {
 int runBench(int argc, char** argv) {
   const std::string what = argc > 2 ? argv[2] : "";
   if (what == "sim") return benchSim(argc, argv);
+  if (what == "infer") return runBenchInfer(argc, argv);
+  if (what == "train") return runBenchTrain(argc, argv);
   if (what == "--help" || what == "-h" || what.empty()) {
-    std::cout << "usage: dss bench sim [options]   (dss bench sim --help)\n"
+    std::cout << "usage: dss bench sim|infer|train [options]   (dss bench infer --help)\n"
                  "  sim    simulator throughput\n"
-                 "Further benchmarks (infer, train) arrive with the SSCNN.\n";
+                 "  infer  SSCNN single-image inference, sparse vs dense\n"
+                 "  train  SSCNN training throughput\n";
     return what.empty() ? 2 : 0;
   }
-  throw UsageError("dss bench: unknown benchmark '" + what + "' (available: sim)");
+  throw UsageError("dss bench: unknown benchmark '" + what + "' (available: sim, infer, train)");
 }
 
 }  // namespace dss::cli

@@ -13,6 +13,9 @@ namespace dss::cli {
 int runGenerate(int argc, char** argv);
 int runBench(int argc, char** argv);
 int runRender(int argc, char** argv);
+// dss bench infer | train (cmd_bench_nn.cpp: the only CLI file that includes libtorch).
+int runBenchInfer(int argc, char** argv);
+int runBenchTrain(int argc, char** argv);
 
 // Options shared by every command that loads a sensor config.
 std::vector<OptionSpec> sensorOptions();

@@ -12,7 +12,7 @@ const char* kUsage =
     "commands:\n"
     "  generate   render a dataset (images + ground truth) into a rosbag\n"
     "  render     render one image for a sun direction into a PNG\n"
-    "  bench      benchmarks printing one JSON line (bench sim)\n";
+    "  bench      benchmarks printing one JSON line (bench sim|infer|train)\n";
 
 }  // namespace
 

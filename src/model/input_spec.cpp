@@ -12,8 +12,7 @@ void InputSpec::checkImage(const cv::Mat& image) const {
     throw std::invalid_argument("image must be single-channel 8- or 16-bit (mono8/mono16)");
   if (image.cols != width_px || image.rows != height_px)
     throw std::invalid_argument("image is " + std::to_string(image.cols) + "x" + std::to_string(image.rows) +
-                                " px but the sensor has " + std::to_string(width_px) + "x" +
-                                std::to_string(height_px));
+                                " px but the sensor has " + std::to_string(width_px) + "x" + std::to_string(height_px));
 }
 
 InputSpec inputSpecFor(const SensorConfig& config, double noise_sigmas) {
@@ -30,12 +29,13 @@ InputSpec inputSpecFor(const SensorConfig& config, double noise_sigmas) {
   } else {
     const auto& n = config.noise;
     const double gain_dn_per_e = spec.max_code / n.adc_full_scale_e;
-    const double dark_e = n.dark_current_e_per_s * std::pow(2.0, (n.temperature_c - n.dark_reference_temp_c) /
-                                                                     n.dark_doubling_temp_c) *
+    const double dark_e = n.dark_current_e_per_s *
+                          std::pow(2.0, (n.temperature_c - n.dark_reference_temp_c) / n.dark_doubling_temp_c) *
                           config.exposure.exposure_s;
     const double sigma_dn = std::sqrt(n.read_noise_e * n.read_noise_e + dark_e) * gain_dn_per_e;
     spec.black_level_dn = n.black_level_dn;
-    spec.threshold_dn = std::round(n.black_level_dn + dark_e * gain_dn_per_e) + std::max(1.0, std::ceil(noise_sigmas * sigma_dn));
+    spec.threshold_dn =
+        std::round(n.black_level_dn + dark_e * gain_dn_per_e) + std::max(1.0, std::ceil(noise_sigmas * sigma_dn));
   }
   return spec;
 }

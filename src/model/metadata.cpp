@@ -153,7 +153,9 @@ void checkSensorCompatible(const ModelMetadata& meta, const SensorConfig& config
       << ", but sensor '" << config.name << "' has " << sensor_value;
     throw ModelError(o.str());
   };
-  auto differs = [](double a, double b, double rel) { return std::abs(a - b) > rel * std::max(std::abs(a), std::abs(b)); };
+  auto differs = [](double a, double b, double rel) {
+    return std::abs(a - b) > rel * std::max(std::abs(a), std::abs(b));
+  };
   if (trained.detector.width_px != config.detector.width_px)
     mismatch("detector.width_px", trained.detector.width_px, config.detector.width_px);
   if (trained.detector.height_px != config.detector.height_px)

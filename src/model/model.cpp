@@ -1,14 +1,14 @@
 #include "digital_sun_sensor/model/model.h"
 
-#include "digital_sun_sensor/common/atomic_file.h"
-#include "digital_sun_sensor/model/sparse_input.h"
-
 #include <torch/serialize/input-archive.h>
 #include <torch/serialize/output-archive.h>
 
 #include <cmath>
 #include <cstring>
 #include <sstream>
+
+#include "digital_sun_sensor/common/atomic_file.h"
+#include "digital_sun_sensor/model/sparse_input.h"
 
 namespace dss {
 namespace {
@@ -114,8 +114,8 @@ Model deserializeModel(const std::string& bytes, const std::string& origin, cons
       throw ModelError(origin + ": tensor '" + name + "' of architecture '" + m.meta.arch.name + "' is missing");
     if (stored.sizes() != target.sizes() || stored.scalar_type() != target.scalar_type()) {
       std::ostringstream o;
-      o << origin << ": tensor '" << name << "' has shape " << stored.sizes() << ", architecture '"
-        << m.meta.arch.name << "' needs " << target.sizes();
+      o << origin << ": tensor '" << name << "' has shape " << stored.sizes() << ", architecture '" << m.meta.arch.name
+        << "' needs " << target.sizes();
       throw ModelError(o.str());
     }
     target.copy_(stored);

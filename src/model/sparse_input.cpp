@@ -1,9 +1,9 @@
 #include "digital_sun_sensor/model/sparse_input.h"
 
-#include "digital_sun_sensor/sparse/ops.h"
-
 #include <algorithm>
 #include <string>
+
+#include "digital_sun_sensor/sparse/ops.h"
 
 namespace dss {
 namespace {
@@ -32,7 +32,8 @@ std::vector<Pixel> activePixels(const cv::Mat& image, const InputSpec& spec) {
       return a.dn != b.dn ? a.dn > b.dn : (a.y != b.y ? a.y < b.y : a.x < b.x);
     });
     pixels.resize(static_cast<std::size_t>(spec.max_sites));
-    std::sort(pixels.begin(), pixels.end(), [](const Pixel& a, const Pixel& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });
+    std::sort(pixels.begin(), pixels.end(),
+              [](const Pixel& a, const Pixel& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });
   }
   return pixels;
 }

@@ -1,12 +1,12 @@
 #include "digital_sun_sensor/model/sscnn.h"
 
-#include "digital_sun_sensor/sparse/ops.h"
-
 #include <torch/nn/functional/activation.h>
 #include <torch/nn/functional/conv.h>
 #include <torch/nn/functional/pooling.h>
 
 #include <cmath>
+
+#include "digital_sun_sensor/sparse/ops.h"
 
 namespace dss {
 
@@ -48,9 +48,9 @@ torch::Tensor SparseConvImpl::forwardDense(const torch::Tensor& x) {
 
 // ---- ResidualBlock
 
-ResidualBlockImpl::ResidualBlockImpl(int in_channels, int out_channels, int stride, bool batch_norm)
-    : stride_(stride) {
-  conv1_ = register_module("conv1", std::make_shared<SparseConvImpl>(in_channels, out_channels, 3, stride, !batch_norm));
+ResidualBlockImpl::ResidualBlockImpl(int in_channels, int out_channels, int stride, bool batch_norm) : stride_(stride) {
+  conv1_ =
+      register_module("conv1", std::make_shared<SparseConvImpl>(in_channels, out_channels, 3, stride, !batch_norm));
   conv2_ = register_module("conv2", std::make_shared<SparseConvImpl>(out_channels, out_channels, 3, 1, !batch_norm));
   if (batch_norm) {
     bn1_ = register_module("bn1", torch::nn::BatchNorm1d(out_channels));
@@ -62,7 +62,8 @@ ResidualBlockImpl::ResidualBlockImpl(int in_channels, int out_channels, int stri
     conv2_->weight.zero_();  // Fixup-style: identity blocks at start, no normalisation needed
   }
   if (stride != 1 || in_channels != out_channels)
-    shortcut_ = register_module("shortcut", std::make_shared<SparseConvImpl>(in_channels, out_channels, 1, stride, false));
+    shortcut_ =
+        register_module("shortcut", std::make_shared<SparseConvImpl>(in_channels, out_channels, 1, stride, false));
 }
 
 torch::Tensor ResidualBlockImpl::norm(torch::nn::BatchNorm1d& bn, const torch::Tensor& f) {
@@ -73,7 +74,9 @@ torch::Tensor ResidualBlockImpl::normDense(torch::nn::BatchNorm1d& bn, const tor
   if (bn.is_empty()) return f;
   // BatchNorm1d over channels of a [B, C, H, W] map: fold spatial dims into the batch.
   const auto s = f.sizes();
-  return bn->forward(f.permute({0, 2, 3, 1}).reshape({-1, s[1]})).reshape({s[0], s[2], s[3], s[1]}).permute({0, 3, 1, 2});
+  return bn->forward(f.permute({0, 2, 3, 1}).reshape({-1, s[1]}))
+      .reshape({s[0], s[2], s[3], s[1]})
+      .permute({0, 3, 1, 2});
 }
 
 SparseTensor ResidualBlockImpl::forward(const SparseTensor& x) {
@@ -95,15 +98,15 @@ torch::Tensor ResidualBlockImpl::forwardDense(const torch::Tensor& x) {
 
 SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   arch_.validate();
-  stem_ = register_module("stem", std::make_shared<SparseConvImpl>(arch.input_channels, arch.stem_width,
-                                                                   arch.stem_kernel, 2, true));
+  stem_ = register_module(
+      "stem", std::make_shared<SparseConvImpl>(arch.input_channels, arch.stem_width, arch.stem_kernel, 2, true));
   int channels = arch.stem_width;
   for (std::size_t stage = 0; stage < arch.blocks.size(); ++stage) {
     for (int b = 0; b < arch.blocks[stage]; ++b) {
       const int stride = (b == 0 && stage > 0) ? 2 : 1;
-      blocks_.push_back(register_module(
-          "stage" + std::to_string(stage + 1) + "_block" + std::to_string(b + 1),
-          std::make_shared<ResidualBlockImpl>(channels, arch.widths[stage], stride, arch.batch_norm)));
+      blocks_.push_back(
+          register_module("stage" + std::to_string(stage + 1) + "_block" + std::to_string(b + 1),
+                          std::make_shared<ResidualBlockImpl>(channels, arch.widths[stage], stride, arch.batch_norm)));
       channels = arch.widths[stage];
     }
   }

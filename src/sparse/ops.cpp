@@ -1,13 +1,13 @@
 #include "digital_sun_sensor/sparse/ops.h"
 
-#include "blas.h"
-
 #include <torch/autograd.h>
 
 #include <algorithm>
 #include <limits>
 #include <string>
 #include <vector>
+
+#include "blas.h"
 
 namespace dss::sparse {
 namespace {
@@ -19,8 +19,8 @@ void checkFeatures(const torch::Tensor& features, int rows, const char* op) {
   if (!features.defined() || features.dim() != 2)
     throw std::invalid_argument(std::string(op) + ": features must be a 2-D [sites, channels] tensor");
   if (features.size(0) != rows)
-    throw std::invalid_argument(std::string(op) + ": " + std::to_string(features.size(0)) +
-                                " feature rows for " + std::to_string(rows) + " active sites");
+    throw std::invalid_argument(std::string(op) + ": " + std::to_string(features.size(0)) + " feature rows for " +
+                                std::to_string(rows) + " active sites");
   if (features.scalar_type() != torch::kFloat && features.scalar_type() != torch::kDouble)
     throw std::invalid_argument(std::string(op) + ": features must be float or double");
 }
@@ -61,8 +61,36 @@ std::int64_t maxPairsPerOffset(const Pairs& p) {
 
 // ---- convolution kernels
 
+// Narrow inputs (the stem: 3 channels x 49 offsets) make per-offset GEMMs
+// with an inner dimension of 3, mostly overhead. Then the gathered rows of all
+// offsets go side by side into one [outputs, k*k*C_in] matrix and one GEMM.
+constexpr int kMaxIm2colColumns = 256;
+
+bool useIm2col(const Pairs& p, int c_in) {
+  const auto offsets = static_cast<int>(p.begin.size()) - 1;
+  return offsets > 1 && offsets * c_in <= kMaxIm2colColumns;
+}
+
 template <typename T>
-void convForward(const T* x, const T* w, T* y, const Pairs& p, int c_in, int c_out) {
+std::vector<T> im2col(const T* x, const Pairs& p, int c_in, std::int64_t n_out) {
+  const std::int64_t cols = static_cast<std::int64_t>(p.begin.size() - 1) * c_in;
+  std::vector<T> m(static_cast<std::size_t>(n_out * cols), T(0));
+  for (std::size_t k = 0; k + 1 < p.begin.size(); ++k)
+    for (std::int64_t j = p.begin[k]; j < p.begin[k + 1]; ++j)
+      std::copy_n(x + static_cast<std::int64_t>(p.in[j]) * c_in, c_in,
+                  m.data() + p.out[j] * cols + static_cast<std::int64_t>(k) * c_in);
+  return m;
+}
+
+template <typename T>
+void convForward(const T* x, const T* w, T* y, const Pairs& p, int c_in, int c_out, std::int64_t n_out) {
+  if (useIm2col(p, c_in)) {
+    if (n_out == 0) return;
+    const int cols = static_cast<int>(p.begin.size() - 1) * c_in;
+    const auto m = im2col(x, p, c_in, n_out);
+    blas::gemm(false, false, static_cast<int>(n_out), c_out, cols, T(1), m.data(), cols, w, c_out, T(0), y, c_out);
+    return;
+  }
   std::vector<T> gathered(static_cast<std::size_t>(maxPairsPerOffset(p) * c_in));
   std::vector<T> product(static_cast<std::size_t>(maxPairsPerOffset(p) * c_out));
   for (std::size_t k = 0; k + 1 < p.begin.size(); ++k) {
@@ -86,7 +114,27 @@ void convForward(const T* x, const T* w, T* y, const Pairs& p, int c_in, int c_o
 }
 
 template <typename T>
-void convBackward(const T* x, const T* w, const T* dy, T* dx, T* dw, const Pairs& p, int c_in, int c_out) {
+void convBackward(const T* x, const T* w, const T* dy, T* dx, T* dw, const Pairs& p, int c_in, int c_out,
+                  std::int64_t n_out) {
+  if (useIm2col(p, c_in)) {
+    if (n_out == 0) return;
+    const int cols = static_cast<int>(p.begin.size() - 1) * c_in, n = static_cast<int>(n_out);
+    if (dw) {
+      const auto m = im2col(x, p, c_in, n_out);
+      blas::gemm(true, false, cols, c_out, n, T(1), m.data(), cols, dy, c_out, T(0), dw, c_out);
+    }
+    if (dx) {
+      std::vector<T> dm(static_cast<std::size_t>(n_out * cols));
+      blas::gemm(false, true, n, cols, c_out, T(1), dy, c_out, w, c_out, T(0), dm.data(), cols);
+      for (std::size_t k = 0; k + 1 < p.begin.size(); ++k)
+        for (std::int64_t j = p.begin[k]; j < p.begin[k + 1]; ++j) {
+          T* dst = dx + static_cast<std::int64_t>(p.in[j]) * c_in;
+          const T* src = dm.data() + p.out[j] * static_cast<std::int64_t>(cols) + static_cast<std::int64_t>(k) * c_in;
+          for (int c = 0; c < c_in; ++c) dst[c] += src[c];
+        }
+    }
+    return;
+  }
   const std::int64_t m = maxPairsPerOffset(p);
   std::vector<T> xg(static_cast<std::size_t>(m * c_in)), gg(static_cast<std::size_t>(m * c_out)),
       dxg(static_cast<std::size_t>(m * c_in));
@@ -119,15 +167,14 @@ void convBackward(const T* x, const T* w, const T* dy, T* dx, T* dw, const Pairs
 }
 
 struct ConvFunction : public torch::autograd::Function<ConvFunction> {
-  static torch::Tensor forward(AutogradContext* ctx, torch::Tensor features, torch::Tensor weight,
-                               const Rulebook* rb) {
+  static torch::Tensor forward(AutogradContext* ctx, torch::Tensor features, torch::Tensor weight, const Rulebook* rb) {
     features = features.contiguous();
     weight = weight.contiguous();
     const int c_in = static_cast<int>(weight.size(1)), c_out = static_cast<int>(weight.size(2));
     auto out = torch::zeros({rb->output->size(), c_out}, features.options());
     AT_DISPATCH_FLOATING_TYPES(features.scalar_type(), "sparseConv", [&] {
       convForward<scalar_t>(features.data_ptr<scalar_t>(), weight.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(),
-                            pairsOf(*rb), c_in, c_out);
+                            pairsOf(*rb), c_in, c_out, rb->output->size());
     });
     ctx->save_for_backward({features, weight});
     savePairs(ctx, *rb);
@@ -147,7 +194,7 @@ struct ConvFunction : public torch::autograd::Function<ConvFunction> {
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "sparseConvBackward", [&] {
       convBackward<scalar_t>(x.data_ptr<scalar_t>(), w.data_ptr<scalar_t>(), dy.data_ptr<scalar_t>(),
                              dx.defined() ? dx.data_ptr<scalar_t>() : nullptr,
-                             dw.defined() ? dw.data_ptr<scalar_t>() : nullptr, p, c_in, c_out);
+                             dw.defined() ? dw.data_ptr<scalar_t>() : nullptr, p, c_in, c_out, dy.size(0));
     });
     return {dx, dw, torch::Tensor()};
   }
@@ -215,7 +262,8 @@ struct AvgPoolFunction : public torch::autograd::Function<AvgPoolFunction> {
       scalar_t* y = out.data_ptr<scalar_t>();
       for (std::int64_t j = 0; j < p.begin.back(); ++j) {
         const scalar_t scale = scalar_t(1) / count[static_cast<std::size_t>(p.out[j])];
-        for (int ch = 0; ch < c; ++ch) y[p.out[j] * static_cast<std::int64_t>(c) + ch] += scale * x[p.in[j] * static_cast<std::int64_t>(c) + ch];
+        for (int ch = 0; ch < c; ++ch)
+          y[p.out[j] * static_cast<std::int64_t>(c) + ch] += scale * x[p.in[j] * static_cast<std::int64_t>(c) + ch];
       }
     });
     savePairs(ctx, *rb);
@@ -233,7 +281,8 @@ struct AvgPoolFunction : public torch::autograd::Function<AvgPoolFunction> {
       scalar_t* d = dx.data_ptr<scalar_t>();
       for (std::int64_t j = 0; j < p.begin.back(); ++j) {
         const scalar_t scale = scalar_t(1) / count[static_cast<std::size_t>(p.out[j])];
-        for (int ch = 0; ch < c; ++ch) d[p.in[j] * static_cast<std::int64_t>(c) + ch] += scale * g[p.out[j] * static_cast<std::int64_t>(c) + ch];
+        for (int ch = 0; ch < c; ++ch)
+          d[p.in[j] * static_cast<std::int64_t>(c) + ch] += scale * g[p.out[j] * static_cast<std::int64_t>(c) + ch];
       }
     });
     return {dx, torch::Tensor()};
@@ -314,8 +363,8 @@ torch::Tensor sparseConv(const torch::Tensor& features, const torch::Tensor& wei
   checkFeatures(features, rulebook.input->size(), "sparseConv");
   if (weight.dim() != 3 || weight.size(0) != rulebook.numOffsets() || weight.size(1) != features.size(1))
     throw std::invalid_argument("sparseConv: weight must be [" + std::to_string(rulebook.numOffsets()) + ", " +
-                                std::to_string(features.size(1)) + ", C_out], got " +
-                                std::to_string(weight.dim()) + "-D " + std::to_string(weight.size(0)) + "x...");
+                                std::to_string(features.size(1)) + ", C_out], got " + std::to_string(weight.dim()) +
+                                "-D " + std::to_string(weight.size(0)) + "x...");
   if (weight.scalar_type() != features.scalar_type())
     throw std::invalid_argument("sparseConv: weight and features differ in dtype");
   return ConvFunction::apply(features, weight, &rulebook);
@@ -345,7 +394,8 @@ torch::Tensor globalAvgPool(const torch::Tensor& features, const SiteSet& sites)
   auto inverse = torch::empty({sites.batchSize(), 1}, features.options());
   AT_DISPATCH_FLOATING_TYPES(features.scalar_type(), "globalAvgPool", [&] {
     for (int b = 0; b < sites.batchSize(); ++b)
-      inverse.data_ptr<scalar_t>()[b] = counts[static_cast<std::size_t>(b)] > 0 ? scalar_t(1) / counts[static_cast<std::size_t>(b)] : scalar_t(0);
+      inverse.data_ptr<scalar_t>()[b] =
+          counts[static_cast<std::size_t>(b)] > 0 ? scalar_t(1) / counts[static_cast<std::size_t>(b)] : scalar_t(0);
   });
   auto sums = torch::zeros({sites.batchSize(), features.size(1)}, features.options());
   return sums.index_add(0, batchIndex(sites), features) * inverse;

@@ -12,15 +12,11 @@ torch::Tensor toTensor(const std::vector<std::int32_t>& values) {
   return t;
 }
 
-// Floor division for possibly negative numerators.
-int floorDiv(int a, int b) { return (a >= 0) ? a / b : -((-a + b - 1) / b); }
-
 }  // namespace
 
 std::shared_ptr<const Rulebook> submanifoldRulebook(std::shared_ptr<const SiteSet> input, int kernel_size) {
   if (kernel_size < 1 || kernel_size % 2 == 0)
-    throw std::invalid_argument("submanifold convolution needs an odd kernel size, got " +
-                                std::to_string(kernel_size));
+    throw std::invalid_argument("submanifold convolution needs an odd kernel size, got " + std::to_string(kernel_size));
   auto rb = std::make_shared<Rulebook>();
   rb->kernel_size = kernel_size;
   rb->padding = kernel_size / 2;
@@ -61,29 +57,54 @@ std::shared_ptr<const Rulebook> stridedRulebook(std::shared_ptr<const SiteSet> i
                                 " larger than the padded " + std::to_string(input->height()) + "x" +
                                 std::to_string(input->width()) + " input");
   const int k = kernel_size;
-  // Output o is reached by input i through offset d when s*o = i + p - d.
-  auto reach = [&](const Site& s, int dy, int dx, Site* out) {
-    const int ny = s.y + padding - dy, nx = s.x + padding - dx;
-    if (ny % stride != 0 || nx % stride != 0) return false;
-    out->batch = s.batch;
-    out->y = floorDiv(ny, stride);
-    out->x = floorDiv(nx, stride);
-    return out->y >= 0 && out->y < out_h && out->x >= 0 && out->x < out_w;
+  // Input i reaches output o through offset d when s*o = i + p - d: only the
+  // offsets congruent to i + p modulo s, at most ceil(k/s)^2 of them.
+  struct Reach {
+    int offset;
+    Site out;
   };
-  std::vector<Site> outputs;
-  for (const Site& s : input->sites())
-    for (int dy = 0; dy < k; ++dy)
-      for (int dx = 0; dx < k; ++dx) {
-        Site o;
-        if (reach(s, dy, dx, &o)) outputs.push_back(o);
+  std::vector<Reach> reaches;
+  auto reachesOf = [&](const Site& site) {
+    reaches.clear();
+    for (int dy = (site.y + padding) % stride; dy < k; dy += stride) {
+      const int oy = (site.y + padding - dy) / stride;
+      if (oy < 0 || oy >= out_h || site.y + padding - dy < 0) continue;
+      for (int dx = (site.x + padding) % stride; dx < k; dx += stride) {
+        const int ox = (site.x + padding - dx) / stride;
+        if (ox < 0 || ox >= out_w || site.x + padding - dx < 0) continue;
+        reaches.push_back({dy * k + dx, {site.batch, oy, ox}});
       }
-  // Sorted (batch, y, x): deterministic and cache-friendly row order.
-  auto less = [](const Site& a, const Site& b) {
-    return std::tie(a.batch, a.y, a.x) < std::tie(b.batch, b.y, b.x);
+    }
   };
-  auto equal = [](const Site& a, const Site& b) { return a.batch == b.batch && a.y == b.y && a.x == b.x; };
-  std::sort(outputs.begin(), outputs.end(), less);
-  outputs.erase(std::unique(outputs.begin(), outputs.end(), equal), outputs.end());
+  // Distinct output sites through a hash set of packed keys; sorting the packed
+  // keys orders them by (batch, y, x): deterministic and cache-friendly.
+  const int per_input = ((k + stride - 1) / stride) * ((k + stride - 1) / stride);
+  std::uint64_t capacity = 16;
+  while (capacity < 2 * static_cast<std::uint64_t>(input->size()) * per_input) capacity *= 2;
+  constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
+  std::vector<std::uint64_t> slots(capacity, kEmpty), keys;
+  auto pack = [](const Site& o) {
+    return (static_cast<std::uint64_t>(o.batch) << 42) | (static_cast<std::uint64_t>(o.y) << 21) |
+           static_cast<std::uint64_t>(o.x);
+  };
+  for (const Site& site : input->sites()) {
+    reachesOf(site);
+    for (const Reach& r : reaches) {
+      const std::uint64_t key = pack(r.out);
+      std::uint64_t slot = (key * 0x9E3779B97F4A7C15ULL) >> 20 & (capacity - 1);
+      while (slots[slot] != kEmpty && slots[slot] != key) slot = (slot + 1) & (capacity - 1);
+      if (slots[slot] == kEmpty) {
+        slots[slot] = key;
+        keys.push_back(key);
+      }
+    }
+  }
+  std::sort(keys.begin(), keys.end());
+  std::vector<Site> outputs;
+  outputs.reserve(keys.size());
+  for (std::uint64_t key : keys)
+    outputs.push_back({static_cast<std::int32_t>(key >> 42), static_cast<std::int32_t>((key >> 21) & 0x1FFFFF),
+                       static_cast<std::int32_t>(key & 0x1FFFFF)});
 
   auto rb = std::make_shared<Rulebook>();
   rb->kernel_size = k;
@@ -92,18 +113,23 @@ std::shared_ptr<const Rulebook> stridedRulebook(std::shared_ptr<const SiteSet> i
   rb->input = input;
   auto output = std::make_shared<SiteSet>(input->batchSize(), out_h, out_w, std::move(outputs));
   rb->output = output;
+  std::vector<std::vector<std::int32_t>> in_by_offset(static_cast<std::size_t>(k * k)),
+      out_by_offset(static_cast<std::size_t>(k * k));
+  for (int i = 0; i < input->size(); ++i) {
+    reachesOf(input->site(i));
+    for (const Reach& r : reaches) {
+      in_by_offset[static_cast<std::size_t>(r.offset)].push_back(i);
+      out_by_offset[static_cast<std::size_t>(r.offset)].push_back(output->find(r.out.batch, r.out.y, r.out.x));
+    }
+  }
   std::vector<std::int32_t> in_rows, out_rows;
   rb->offset_begin.push_back(0);
-  for (int dy = 0; dy < k; ++dy) {
-    for (int dx = 0; dx < k; ++dx) {
-      for (int i = 0; i < input->size(); ++i) {
-        Site o;
-        if (!reach(input->site(i), dy, dx, &o)) continue;
-        in_rows.push_back(i);
-        out_rows.push_back(output->find(o.batch, o.y, o.x));
-      }
-      rb->offset_begin.push_back(static_cast<std::int64_t>(in_rows.size()));
-    }
+  for (int d = 0; d < k * k; ++d) {
+    const auto& ins = in_by_offset[static_cast<std::size_t>(d)];
+    const auto& outs = out_by_offset[static_cast<std::size_t>(d)];
+    in_rows.insert(in_rows.end(), ins.begin(), ins.end());
+    out_rows.insert(out_rows.end(), outs.begin(), outs.end());
+    rb->offset_begin.push_back(static_cast<std::int64_t>(in_rows.size()));
   }
   rb->in_rows = toTensor(in_rows);
   rb->out_rows = toTensor(out_rows);

@@ -11,13 +11,13 @@ struct ArchSpec {
   std::string name;
   int input_channels = 3;  // pixel value, x, y
   int stem_width = 64;
-  int stem_kernel = 7;       // strided sparse conv, stride 2
-  bool stem_max_pool = true; // 3x3 stride-2 sparse max pool
+  int stem_kernel = 7;                  // strided sparse conv, stride 2
+  bool stem_max_pool = true;            // 3x3 stride-2 sparse max pool
   std::vector<int> blocks{3, 4, 6, 3};  // residual blocks per stage; stages after the first halve resolution
   std::vector<int> widths{64, 128, 256, 512};
-  bool batch_norm = false;       // the published network has none
-  bool centroid_pool = true;     // learned intensity-weighted centroid of the input sites
-  int centroid_width = 16;       // channels of its weighting branch
+  bool batch_norm = false;    // the published network has none
+  bool centroid_pool = true;  // learned intensity-weighted centroid of the input sites
+  int centroid_width = 16;    // channels of its weighting branch
   std::vector<int> head_hidden{256, 256};
   int num_classes = 4;  // sub-FOV classes of the sensor
 

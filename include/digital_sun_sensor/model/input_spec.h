@@ -3,9 +3,9 @@
 // model-file metadata so that the estimator encodes exactly as in training.
 #pragma once
 
-#include "digital_sun_sensor/sim/sensor_config.h"
-
 #include <opencv2/core.hpp>
+
+#include "digital_sun_sensor/sim/sensor_config.h"
 
 namespace dss {
 

@@ -2,11 +2,11 @@
 // sensor it was trained for, training summary and metrics. Torch-free YAML.
 #pragma once
 
-#include "digital_sun_sensor/model/arch.h"
-#include "digital_sun_sensor/model/input_spec.h"
-
 #include <stdexcept>
 #include <string>
+
+#include "digital_sun_sensor/model/arch.h"
+#include "digital_sun_sensor/model/input_spec.h"
 
 namespace dss {
 

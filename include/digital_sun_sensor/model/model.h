@@ -6,14 +6,13 @@
 // archive of every parameter and buffer by name), u64 FNV-1a of all before.
 #pragma once
 
-#include "digital_sun_sensor/model/metadata.h"
-#include "digital_sun_sensor/model/sscnn.h"
-
-#include <opencv2/core.hpp>
-
 #include <memory>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
+
+#include "digital_sun_sensor/model/metadata.h"
+#include "digital_sun_sensor/model/sscnn.h"
 
 namespace dss {
 

@@ -1,10 +1,10 @@
 // Sensor images -> the SSCNN's sparse input batch (features: value, x, y).
 #pragma once
 
+#include <vector>
+
 #include "digital_sun_sensor/model/input_spec.h"
 #include "digital_sun_sensor/sparse/sparse_tensor.h"
-
-#include <vector>
 
 namespace dss {
 

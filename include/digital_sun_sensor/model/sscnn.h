@@ -5,12 +5,12 @@
 // axis and sub-FOV class logits. Outputs are normalized; Model decodes them.
 #pragma once
 
-#include "digital_sun_sensor/model/arch.h"
-#include "digital_sun_sensor/sparse/sparse_tensor.h"
-
 #include <torch/nn/module.h>
 #include <torch/nn/modules/batchnorm.h>
 #include <torch/nn/modules/linear.h>
+
+#include "digital_sun_sensor/model/arch.h"
+#include "digital_sun_sensor/sparse/sparse_tensor.h"
 
 namespace dss {
 

@@ -8,14 +8,14 @@
 // Strided: output sites = every o that some active input reaches.
 #pragma once
 
-#include "digital_sun_sensor/sparse/site_set.h"
-
 #include <torch/types.h>
 
 #include <map>
 #include <memory>
 #include <mutex>
 #include <tuple>
+
+#include "digital_sun_sensor/sparse/site_set.h"
 
 namespace dss::sparse {
 
@@ -25,10 +25,10 @@ struct Rulebook {
   int padding = 0;
   std::shared_ptr<const SiteSet> input;
   std::shared_ptr<const SiteSet> output;
-  torch::Tensor in_rows;   // int32 [pairs], grouped by offset
-  torch::Tensor out_rows;  // int32 [pairs]
+  torch::Tensor in_rows;                   // int32 [pairs], grouped by offset
+  torch::Tensor out_rows;                  // int32 [pairs]
   std::vector<std::int64_t> offset_begin;  // [k * k + 1] into the pair arrays
-  int identity_offset = -1;  // offset whose pairs are (r, r) for all rows, or -1
+  int identity_offset = -1;                // offset whose pairs are (r, r) for all rows, or -1
 
   int numOffsets() const { return kernel_size * kernel_size; }
   std::int64_t numPairs() const { return offset_begin.back(); }

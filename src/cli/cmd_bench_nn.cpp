@@ -1,0 +1,187 @@
+// dss bench infer | train: SSCNN speed, sparse vs the same network run densely.
+#include <torch/nn/functional/loss.h>
+#include <torch/optim/adam.h>
+
+#include <algorithm>
+#include <chrono>
+#include <iostream>
+#include <numeric>
+
+#include "commands.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sparse_input.h"
+#include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sparse/threads.h"
+#include "progress.h"
+
+namespace dss::cli {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const double pos = q * static_cast<double>(v.size() - 1);
+  const auto lo = static_cast<std::size_t>(pos);
+  const auto hi = std::min(lo + 1, v.size() - 1);
+  return v[lo] + (pos - static_cast<double>(lo)) * (v[hi] - v[lo]);
+}
+
+std::vector<OptionSpec> nnBenchOptions(const std::string& blas_threads) {
+  auto specs = sensorOptions();
+  specs.insert(specs.end(),
+               {
+                   {"arch", "A", "architecture (resnet34, resnet18, resnet18_w32, resnet10_w16)", defaultArchName(),
+                    false, false},
+                   {"model", "FILE", "time this model file instead of a fresh --arch network", "", false, false},
+                   {"seed", "S", "seed of the simulated images and the weights", "1", false, false},
+                   {"aten-threads", "N", "ATen (OpenMP) threads", "1", false, false},
+                   {"blas-threads", "N", "OpenBLAS threads (sparse convolution GEMMs)", blas_threads, false, false},
+               });
+  return specs;
+}
+
+Model benchModel(const Args& args, const SensorConfig& config) {
+  if (args.has("model")) return loadModel(args.get("model"), &config);
+  return createModel(config, args.get("arch"), static_cast<std::uint64_t>(args.getInt("seed")));
+}
+
+std::vector<DatasetItem> simulate(const SensorConfig& config, std::uint64_t count, std::uint64_t seed) {
+  DatasetSpec spec;
+  spec.count = count;
+  spec.seed = seed;
+  spec.threads = 2;
+  std::vector<DatasetItem> items;
+  Progress progress("simulating " + std::to_string(count) + " images", count);
+  DatasetGenerator(config, spec)
+      .run([&](const DatasetItem& i) { items.push_back(i); },
+           [&](std::uint64_t done, std::uint64_t) { progress.update(done); });
+  progress.finish();
+  return items;
+}
+
+}  // namespace
+
+int runBenchInfer(int argc, char** argv) {
+  auto specs = nnBenchOptions("1");  // measured: single-image GEMMs are too small to split
+  specs.insert(specs.end(),
+               {
+                   {"count", "N", "images timed through the sparse network", "200", false, false},
+                   {"images", "N", "distinct simulated images, cycled (default: --count)", "", false, false},
+                   {"dense-count", "N", "images timed through the dense network", "5", false, false},
+                   {"dense-aten-threads", "N",
+                    "ATen threads of the dense run (its convolutions are ATen's; OpenBLAS gets 1)", "2", false, false},
+               });
+  Args args("dss bench infer",
+            "Single-image SSCNN inference time (image -> sites -> rulebooks -> network -> angles), sparse and the "
+            "same layers and weights run densely (torch::conv2d over the whole image) in the same run; one JSON line.",
+            specs);
+  if (!args.parse(argc, argv, 3)) return 0;
+  const SensorConfig config = loadSensorFromArgs(args);
+  sparse::configureThreads(static_cast<int>(args.getInt("aten-threads")),
+                           static_cast<int>(args.getInt("blas-threads")));
+  const Model model = benchModel(args, config);
+  model.net->eval();
+  const auto count = static_cast<std::uint64_t>(args.getInt("count"));
+  const auto dense_count = static_cast<std::uint64_t>(args.getInt("dense-count"));
+  const auto distinct = args.has("images") ? static_cast<std::uint64_t>(args.getInt("images")) : count;
+  const auto items = simulate(config, std::max<std::uint64_t>({distinct, dense_count, 1}),
+                              static_cast<std::uint64_t>(args.getInt("seed")));
+  torch::NoGradGuard no_grad;
+  for (std::size_t i = 0; i < std::min<std::size_t>(5, items.size()); ++i) model.predict({items[i].image});  // warm-up
+
+  std::vector<double> sparse_ms, dense_ms;
+  double sites = 0;
+  for (std::uint64_t i = 0; i < count; ++i) {
+    const auto t0 = Clock::now();
+    const auto p = model.predict({items[i % items.size()].image});
+    sparse_ms.push_back(msSince(t0));
+    sites += p[0].active_sites;
+  }
+  const std::string sparse_threads = sparse::threadSummary();
+  sparse::configureThreads(static_cast<int>(args.getInt("dense-aten-threads")), 1);
+  Progress progress("dense network", dense_count);
+  for (std::uint64_t i = 0; i < dense_count; ++i) {
+    const auto t0 = Clock::now();
+    const auto out = model.net->forwardDense(encodeImagesDense({items[i].image}, model.meta.input));
+    (void)out.angles.sum().item<float>();
+    dense_ms.push_back(msSince(t0));
+    progress.update(i + 1);
+  }
+  progress.finish();
+  const double sparse_median = percentile(sparse_ms, 0.5), dense_median = percentile(dense_ms, 0.5);
+  std::cout << "{\"bench\":\"infer\",\"sensor\":\"" << config.name << "\",\"arch\":\"" << model.meta.arch.name
+            << "\",\"parameters\":" << model.net->parameterCount() << ",\"sparse_threads\":\"" << sparse_threads
+            << "\",\"dense_threads\":\"" << sparse::threadSummary() << "\",\"images\":" << count
+            << ",\"mean_active_sites\":" << sites / std::max<std::uint64_t>(1, count)
+            << ",\"sparse_median_ms\":" << sparse_median << ",\"sparse_p99_ms\":" << percentile(sparse_ms, 0.99)
+            << ",\"dense_images\":" << dense_count << ",\"dense_median_ms\":" << dense_median
+            << ",\"dense_p99_ms\":" << percentile(dense_ms, 0.99)
+            << ",\"dense_over_sparse\":" << (sparse_median > 0 ? dense_median / sparse_median : 0.0) << "}"
+            << std::endl;
+  return 0;
+}
+
+int runBenchTrain(int argc, char** argv) {
+  auto specs = nnBenchOptions("2");  // measured: batch-64 GEMMs gain 1.45x from a second thread
+  specs.insert(specs.end(), {
+                                {"batch", "B", "images per step", "64", false, false},
+                                {"steps", "N", "timed optimizer steps (after 2 warm-up steps)", "20", false, false},
+                                {"images", "N", "distinct simulated images cycled through", "256", false, false},
+                            });
+  Args args("dss bench train",
+            "SSCNN training throughput: forward + backward + Adam step on sparse batches (rulebooks built per batch, "
+            "as in training); one JSON line.",
+            specs);
+  if (!args.parse(argc, argv, 3)) return 0;
+  const SensorConfig config = loadSensorFromArgs(args);
+  sparse::configureThreads(static_cast<int>(args.getInt("aten-threads")),
+                           static_cast<int>(args.getInt("blas-threads")));
+  Model model = benchModel(args, config);
+  model.net->train();
+  const auto batch = static_cast<std::size_t>(args.getInt("batch"));
+  const auto steps = static_cast<int>(args.getInt("steps"));
+  const auto items = simulate(config, static_cast<std::uint64_t>(std::max<long long>(args.getInt("images"), 1)),
+                              static_cast<std::uint64_t>(args.getInt("seed")));
+  if (batch < 1 || steps < 1) throw UsageError("dss bench train: --batch and --steps must be positive");
+  torch::optim::Adam optimizer(model.net->parameters(), torch::optim::AdamOptions(1e-3));
+  std::size_t next = 0;
+  double sites = 0, step_ms = 0;
+  for (int step = -2; step < steps; ++step) {
+    std::vector<cv::Mat> images;
+    std::vector<float> targets;
+    std::vector<std::int64_t> classes;
+    for (std::size_t b = 0; b < batch; ++b, next = (next + 1) % items.size()) {
+      images.push_back(items[next].image);
+      targets.push_back(static_cast<float>(items[next].truth.alpha_rad / model.meta.angle_scale_rad));
+      targets.push_back(static_cast<float>(items[next].truth.beta_rad / model.meta.angle_scale_rad));
+      classes.push_back(std::max(0, items[next].truth.subfov_class));
+    }
+    const auto input = encodeImages(images, model.meta.input);  // the trainer keeps these in memory
+    const auto target = torch::tensor(targets).view({-1, 2});
+    const auto t0 = Clock::now();
+    optimizer.zero_grad();
+    const auto out = model.net->forward(input);
+    // Heteroscedastic Gaussian NLL on the angles plus the class cross-entropy.
+    const auto nll =
+        (0.5 * (out.angles - target).pow(2) * torch::exp(-out.log_variance) + 0.5 * out.log_variance).mean();
+    const auto loss = nll + torch::cross_entropy_loss(out.class_logits, torch::tensor(classes));
+    loss.backward();
+    optimizer.step();
+    if (step >= 0) {
+      step_ms += msSince(t0);
+      sites += static_cast<double>(input.sites->size());
+    }
+  }
+  std::cout << "{\"bench\":\"train\",\"sensor\":\"" << config.name << "\",\"arch\":\"" << model.meta.arch.name
+            << "\",\"parameters\":" << model.net->parameterCount() << ",\"threads\":\"" << sparse::threadSummary()
+            << "\",\"batch\":" << batch << ",\"steps\":" << steps << ",\"ms_per_step\":" << step_ms / steps
+            << ",\"images_per_s\":" << 1000.0 * static_cast<double>(batch) * steps / step_ms
+            << ",\"mean_active_sites\":" << sites / (static_cast<double>(batch) * steps) << "}" << std::endl;
+  return 0;
+}
+
+}  // namespace dss::cli
