@@ -1,5 +1,6 @@
-// dss generate end to end: bags that rosbag reads, identical for the same
-// seed, clear errors for bad arguments and configs, no partial files left.
+// The dss command line end to end. generate: bags that rosbag reads,
+// identical for the same seed, clear errors for bad arguments and configs, no
+// partial files left. bench infer/train: one JSON line with every figure.
 #include <digital_sun_sensor/SpotCentres.h>
 #include <digital_sun_sensor/SunAngles.h>
 #include <gtest/gtest.h>
@@ -118,6 +119,32 @@ TEST(Generate, BadInputGetsClearErrors) {
   r = run("generate --help");
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.output.find("--sampling"), std::string::npos);
+}
+
+// The JSON line carries each key with a positive number.
+void expectPositiveFigures(const std::string& output, const std::vector<std::string>& keys) {
+  const auto line = output.substr(output.rfind("{\"bench\""));
+  for (const auto& key : keys) {
+    const auto at = line.find("\"" + key + "\":");
+    ASSERT_NE(at, std::string::npos) << key << " missing in " << line;
+    EXPECT_GT(std::stod(line.substr(at + key.size() + 3)), 0.0) << key << " in " << line;
+  }
+}
+
+TEST(Bench, InferAndTrainPrintOneJsonLine) {
+  auto r = run("bench infer --sensor " + kSensor + " --arch resnet10_w16 --count 4 --dense-count 1");
+  ASSERT_EQ(r.code, 0) << r.output;
+  expectPositiveFigures(r.output, {"parameters", "mean_active_sites", "sparse_median_ms", "sparse_p99_ms",
+                                   "dense_median_ms", "dense_p99_ms", "dense_over_sparse"});
+  r = run("bench train --sensor " + kSensor + " --arch resnet10_w16 --batch 4 --steps 2 --images 8");
+  ASSERT_EQ(r.code, 0) << r.output;
+  expectPositiveFigures(r.output, {"parameters", "ms_per_step", "images_per_s", "mean_active_sites"});
+  r = run("bench infer --sensor " + kSensor + " --arch resnet99");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find("unknown architecture 'resnet99' (available: resnet34"), std::string::npos) << r.output;
+  r = run("bench infer --sensor " + kSensor + " --model /nonexistent.dssmodel");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find("cannot open '/nonexistent.dssmodel'"), std::string::npos) << r.output;
 }
 
 }  // namespace
