@@ -114,6 +114,24 @@ TEST(ModelFile, RoundTripIsBitExact) {
   std::remove(path.c_str());
 }
 
+TEST(ModelFile, BatchNormVariantKeepsItsRunningStatistics) {
+  const SensorConfig c = shipped("thesis_sa");
+  ArchSpec arch = archPreset("resnet10_w16", c.numSubFovClasses());
+  arch.batch_norm = true;
+  Model m;
+  m.meta = metadataFor(c, arch);
+  m.net = std::make_shared<SscnnNetImpl>(m.meta.arch);
+  const auto input = encodeImages(imageList(), m.meta.input);
+  m.net->train();
+  m.net->forward(input).angles.sum().backward();  // updates the running statistics
+  m.net->eval();
+  const Model loaded = deserializeModel(serializeModel(m), "bn", &c);
+  EXPECT_TRUE(loaded.meta.arch.batch_norm);
+  torch::NoGradGuard no_grad;
+  EXPECT_TRUE(torch::equal(m.net->forward(input).angles, loaded.net->forward(input).angles));
+  EXPECT_TRUE(torch::isfinite(loaded.net->forward(input).angles).all().item<bool>());
+}
+
 TEST(ModelFile, RejectsCorruptTruncatedWrongArchitectureAndWrongSensor) {
   const SensorConfig c = shipped("thesis_sa");
   const Model m = createModel(c, "resnet10_w16");
