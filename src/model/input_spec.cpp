@@ -29,9 +29,7 @@ InputSpec inputSpecFor(const SensorConfig& config, double noise_sigmas) {
   } else {
     const auto& n = config.noise;
     const double gain_dn_per_e = spec.max_code / n.adc_full_scale_e;
-    const double dark_e = n.dark_current_e_per_s *
-                          std::pow(2.0, (n.temperature_c - n.dark_reference_temp_c) / n.dark_doubling_temp_c) *
-                          config.exposure.exposure_s;
+    const double dark_e = n.darkCurrentAtTemperatureEPerS() * config.exposure.exposure_s;
     const double sigma_dn = std::sqrt(n.read_noise_e * n.read_noise_e + dark_e) * gain_dn_per_e;
     spec.black_level_dn = n.black_level_dn;
     spec.threshold_dn =

@@ -7,7 +7,7 @@
 #include <cstring>
 #include <sstream>
 
-#include "digital_sun_sensor/common/atomic_file.h"
+#include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 
 namespace dss {
@@ -130,19 +130,23 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
   const auto angles = out.angles.detach().to(torch::kDouble).contiguous();
   const auto log_var = out.log_variance.detach().to(torch::kDouble).contiguous();
   const auto probs = torch::softmax(out.class_logits.detach().to(torch::kDouble), 1).contiguous();
+  // Accessors, not per-element indexing: each tensor index or item() would allocate.
+  const auto a = angles.accessor<double, 2>(), v = log_var.accessor<double, 2>(), c = probs.accessor<double, 2>();
   const auto counts = sites.countsPerImage();
   const double s = meta.angle_scale_rad;
   std::vector<Prediction> result(static_cast<std::size_t>(angles.size(0)));
   for (std::size_t b = 0; b < result.size(); ++b) {
     Prediction& p = result[b];
     const auto i = static_cast<std::int64_t>(b);
-    p.alpha_rad = angles[i][0].item<double>() * s;
-    p.beta_rad = angles[i][1].item<double>() * s;
-    p.alpha_variance_rad2 = std::exp(log_var[i][0].item<double>()) * s * s;
-    p.beta_variance_rad2 = std::exp(log_var[i][1].item<double>()) * s * s;
-    const auto best = probs[i].argmax().item<std::int64_t>();
-    p.subfov_class = static_cast<int>(best);
-    p.class_probability = probs[i][best].item<double>();
+    p.alpha_rad = a[i][0] * s;
+    p.beta_rad = a[i][1] * s;
+    p.alpha_variance_rad2 = std::exp(v[i][0]) * s * s;
+    p.beta_variance_rad2 = std::exp(v[i][1]) * s * s;
+    for (std::int64_t k = 0; k < probs.size(1); ++k)
+      if (k == 0 || c[i][k] > p.class_probability) {
+        p.subfov_class = static_cast<int>(k);
+        p.class_probability = c[i][k];
+      }
     p.active_sites = counts[b];
   }
   return result;

@@ -91,8 +91,7 @@ void Renderer::warmUp(int threads, const std::function<void(std::size_t, std::si
 }
 
 double Renderer::darkElectronsPerSecond() const {
-  const auto& n = instance_.config.noise;
-  return n.dark_current_e_per_s * std::pow(2.0, (n.temperature_c - n.dark_reference_temp_c) / n.dark_doubling_temp_c);
+  return instance_.config.noise.darkCurrentAtTemperatureEPerS();
 }
 
 cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* truth, Rng* anomaly_rng) const {

@@ -1,9 +1,10 @@
 #include "digital_sun_sensor/sim/sensor_config.h"
 
+#include "digital_sun_sensor/common/file_io.h"
+
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
-#include <fstream>
 #include <sstream>
 
 namespace dss {
@@ -341,12 +342,18 @@ SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& 
   return c;
 }
 
+double DetectorNoiseConfig::darkCurrentAtTemperatureEPerS() const {
+  return dark_current_e_per_s * std::pow(2.0, (temperature_c - dark_reference_temp_c) / dark_doubling_temp_c);
+}
+
 SensorConfig loadSensorConfig(const std::string& path, const std::vector<std::string>& overrides) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError(path + ": cannot open sensor config");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return parseSensorConfig(ss.str(), path, overrides);
+  std::string text;
+  try {
+    text = readFile(path);
+  } catch (const std::runtime_error&) {
+    throw ConfigError(path + ": cannot open sensor config");
+  }
+  return parseSensorConfig(text, path, overrides);
 }
 
 std::string toYaml(const SensorConfig& c) {

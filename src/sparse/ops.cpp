@@ -91,8 +91,9 @@ void convForward(const T* x, const T* w, T* y, const Pairs& p, int c_in, int c_o
     blas::gemm(false, false, static_cast<int>(n_out), c_out, cols, T(1), m.data(), cols, w, c_out, T(0), y, c_out);
     return;
   }
-  std::vector<T> gathered(static_cast<std::size_t>(maxPairsPerOffset(p) * c_in));
-  std::vector<T> product(static_cast<std::size_t>(maxPairsPerOffset(p) * c_out));
+  const std::int64_t max_pairs = maxPairsPerOffset(p);
+  std::vector<T> gathered(static_cast<std::size_t>(max_pairs * c_in));
+  std::vector<T> product(static_cast<std::size_t>(max_pairs * c_out));
   for (std::size_t k = 0; k + 1 < p.begin.size(); ++k) {
     const std::int64_t b = p.begin[k], n = p.begin[k + 1] - b;
     if (n == 0) continue;

@@ -83,14 +83,10 @@ std::shared_ptr<const Rulebook> stridedRulebook(std::shared_ptr<const SiteSet> i
   while (capacity < 2 * static_cast<std::uint64_t>(input->size()) * per_input) capacity *= 2;
   constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
   std::vector<std::uint64_t> slots(capacity, kEmpty), keys;
-  auto pack = [](const Site& o) {
-    return (static_cast<std::uint64_t>(o.batch) << 42) | (static_cast<std::uint64_t>(o.y) << 21) |
-           static_cast<std::uint64_t>(o.x);
-  };
   for (const Site& site : input->sites()) {
     reachesOf(site);
     for (const Reach& r : reaches) {
-      const std::uint64_t key = pack(r.out);
+      const std::uint64_t key = SiteSet::packKey(r.out);
       std::uint64_t slot = (key * 0x9E3779B97F4A7C15ULL) >> 20 & (capacity - 1);
       while (slots[slot] != kEmpty && slots[slot] != key) slot = (slot + 1) & (capacity - 1);
       if (slots[slot] == kEmpty) {
@@ -102,9 +98,7 @@ std::shared_ptr<const Rulebook> stridedRulebook(std::shared_ptr<const SiteSet> i
   std::sort(keys.begin(), keys.end());
   std::vector<Site> outputs;
   outputs.reserve(keys.size());
-  for (std::uint64_t key : keys)
-    outputs.push_back({static_cast<std::int32_t>(key >> 42), static_cast<std::int32_t>((key >> 21) & 0x1FFFFF),
-                       static_cast<std::int32_t>(key & 0x1FFFFF)});
+  for (std::uint64_t key : keys) outputs.push_back(SiteSet::unpackKey(key));
 
   auto rb = std::make_shared<Rulebook>();
   rb->kernel_size = k;

@@ -17,9 +17,14 @@ std::uint64_t mix(std::uint64_t k) {  // splitmix64 finaliser: spreads neighbour
 
 }  // namespace
 
-std::uint64_t SiteSet::key(int batch, int y, int x) {
-  return (static_cast<std::uint64_t>(batch) << 42) | (static_cast<std::uint64_t>(y) << 21) |
-         static_cast<std::uint64_t>(x);
+std::uint64_t SiteSet::packKey(const Site& s) {
+  return (static_cast<std::uint64_t>(s.batch) << 42) | (static_cast<std::uint64_t>(s.y) << 21) |
+         static_cast<std::uint64_t>(s.x);
+}
+
+Site SiteSet::unpackKey(std::uint64_t key) {
+  return {static_cast<std::int32_t>(key >> 42), static_cast<std::int32_t>((key >> 21) & 0x1FFFFF),
+          static_cast<std::int32_t>(key & 0x1FFFFF)};
 }
 
 SiteSet::SiteSet(int batch_size, int height, int width, std::vector<Site> sites)
@@ -38,7 +43,7 @@ SiteSet::SiteSet(int batch_size, int height, int width, std::vector<Site> sites)
       throw std::invalid_argument("SiteSet: site (batch " + std::to_string(s.batch) + ", y " + std::to_string(s.y) +
                                   ", x " + std::to_string(s.x) + ") lies outside the " + std::to_string(batch_size) +
                                   "x" + std::to_string(height) + "x" + std::to_string(width) + " extent");
-    const std::uint64_t k = key(s.batch, s.y, s.x);
+    const std::uint64_t k = packKey(s);
     std::uint64_t slot = mix(k) & slot_mask_;
     while (slot_keys_[slot] != kEmpty) {
       if (slot_keys_[slot] == k)
@@ -53,7 +58,7 @@ SiteSet::SiteSet(int batch_size, int height, int width, std::vector<Site> sites)
 
 int SiteSet::find(int batch, int y, int x) const {
   if (y < 0 || y >= height_ || x < 0 || x >= width_ || batch < 0 || batch >= batch_size_) return -1;
-  const std::uint64_t k = key(batch, y, x);
+  const std::uint64_t k = packKey({batch, y, x});
   for (std::uint64_t slot = mix(k) & slot_mask_;; slot = (slot + 1) & slot_mask_) {
     if (slot_keys_[slot] == k) return slot_rows_[slot];
     if (slot_keys_[slot] == kEmpty) return -1;

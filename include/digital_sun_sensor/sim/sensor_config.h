@@ -100,6 +100,9 @@ struct DetectorNoiseConfig {
   double temperature_c = 25.0;
   double dsnu_fraction = 0.0;  // per-pixel dark current spread (std / mean)
   double prnu_fraction = 0.0;  // per-pixel gain spread (std / mean)
+
+  // Mean dark current at temperature_c: doubles every dark_doubling_temp_c.
+  double darkCurrentAtTemperatureEPerS() const;
 };
 
 struct ThresholdConfig {

@@ -34,9 +34,11 @@ class SiteSet {
   // Active sites per batch image.
   std::vector<int> countsPerImage() const;
 
- private:
-  static std::uint64_t key(int batch, int y, int x);
+  // One 64-bit key per coordinate (21 bits per axis); keys sort as (batch, y, x).
+  static std::uint64_t packKey(const Site& site);
+  static Site unpackKey(std::uint64_t key);
 
+ private:
   int batch_size_, height_, width_;
   std::vector<Site> sites_;
   // Open addressing with linear probing; capacity a power of two >= 2 size.

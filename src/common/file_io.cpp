@@ -1,4 +1,4 @@
-#include "digital_sun_sensor/common/atomic_file.h"
+#include "digital_sun_sensor/common/file_io.h"
 
 #include <fcntl.h>
 #include <unistd.h>

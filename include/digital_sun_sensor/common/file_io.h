@@ -1,5 +1,5 @@
-// Writes a file so that readers see either the old or the complete new
-// content: temp file in the same directory, fsync, rename.
+// Whole-file reads and atomic writes (readers see either the old or the
+// complete new content: temp file in the same directory, fsync, rename).
 #pragma once
 
 #include <string>
