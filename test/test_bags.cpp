@@ -8,13 +8,15 @@
 #include <rosbag/view.h>
 #include <sensor_msgs/Image.h>
 #include <std_msgs/String.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <sstream>
 #include <string>
-#include <unistd.h>
 
 namespace {
 
@@ -119,6 +121,96 @@ TEST(Generate, BadInputGetsClearErrors) {
   r = run("generate --help");
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.output.find("--sampling"), std::string::npos);
+}
+
+// The figure after "key": in a JSON line (NaN when absent or null).
+double jsonNumber(const std::string& line, const std::string& key) {
+  const auto at = line.find("\"" + key + "\": ");
+  if (at == std::string::npos || line.compare(at + key.size() + 4, 4, "null") == 0) return std::nan("");
+  return std::stod(line.substr(at + key.size() + 4));
+}
+
+std::string lastLine(const std::string& output, const std::string& prefix) {
+  const auto at = output.rfind(prefix);
+  return at == std::string::npos ? "" : output.substr(at, output.find('\n', at) - at);
+}
+
+// Calibrate on one bag, evaluate on a disjoint bag of the same simulated
+// sensor (same seed, later offset): one JSON line with every DESIGN key.
+TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
+  const std::string cal = tmp("cal.bag"), test = tmp("test.bag"), calib = tmp("calib.yaml"), csv = tmp("eval.csv");
+  ASSERT_EQ(run("generate --sensor " + kSensor + " --count 80 --seed 5 --anomalies as_built=1 --set optics.psf_node_step_deg=3 --out " + cal).code, 0);
+  ASSERT_EQ(
+      run("generate --sensor " + kSensor + " --count 30 --seed 5 --offset 80 --anomalies as_built=1 --set optics.psf_node_step_deg=3 --out " + test)
+          .code,
+      0);
+  auto r = run("calibrate --data " + cal + " --out " + calib);
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::string fit = lastLine(r.output, "{\"images\"");
+  EXPECT_EQ(jsonNumber(fit, "images"), 80);
+  EXPECT_LT(jsonNumber(fit, "rms_px_fitted"), 0.5) << fit;
+  r = run("eval --data " + test + " --estimator centroid:" + calib + " --csv " + csv + " --crlb-samples 5");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::string line = lastLine(r.output, "{\"estimator\"");
+  for (const char* key :
+       {"n", "alpha_mean_deg", "alpha_rms_deg", "alpha_p99_deg", "alpha_max_deg", "beta_mean_deg", "beta_rms_deg",
+        "beta_p99_deg", "beta_max_deg", "subfov_accuracy", "valid_rate", "ms_per_image", "crlb_ratio"}) {
+    EXPECT_FALSE(std::isnan(jsonNumber(line, key))) << key << " in " << line;
+  }
+  EXPECT_EQ(jsonNumber(line, "n"), 30);
+  EXPECT_GT(jsonNumber(line, "valid_rate"), 0.8);
+  EXPECT_LT(jsonNumber(line, "alpha_mean_deg"), 0.005) << line;  // the published SSCNN: 0.0053
+  EXPECT_GT(jsonNumber(line, "crlb_ratio"), 1.0) << line;        // nothing beats the bound
+  const std::string rows = slurp(csv);
+  EXPECT_EQ(std::count(rows.begin(), rows.end(), '\n'), 31);
+  for (const auto& f : {cal, test, calib, csv}) std::remove(f.c_str());
+}
+
+// Unusable data is refused with a message naming the file and the problem.
+TEST(Baseline, BadBagsGetClearErrors) {
+  const std::string empty = tmp("empty.bag"), junk = tmp("junk.bag"), good = tmp("good.bag"), cut = tmp("cut.bag"),
+                    other = tmp("other.bag"), small = tmp("small.bag"), calib = tmp("bad_calib.yaml");
+  { std::ofstream(empty); }
+  { std::ofstream(junk) << std::string(5000, 'x'); }
+  ASSERT_EQ(run("generate --sensor " + kSensor + " --count 30 --seed 3 --set optics.psf_node_step_deg=3 --out " + good).code, 0);
+  const std::string bytes = slurp(good);
+  { std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() / 2); }
+  {
+    rosbag::Bag bag(other, rosbag::bagmode::Write);
+    std_msgs::String s;
+    s.data = "hello";
+    bag.write("/chatter", ros::Time(1, 0), s);
+  }
+  ASSERT_EQ(run("generate --sensor " + kSensor +
+                " --count 3 --seed 3 --set optics.psf_node_step_deg=3 --set detector.width_px=256 --set detector.height_px=256 --out " + small)
+                .code,
+            0);
+  ASSERT_EQ(run("calibrate --data " + good + " --out " + calib).code, 0);
+
+  for (const auto& bag : {empty, junk, cut}) {
+    const auto r = run("eval --data " + bag + " --estimator centroid:" + calib);
+    EXPECT_EQ(r.code, 1) << bag;
+    EXPECT_NE(r.output.find(bag), std::string::npos) << r.output;
+  }
+  auto r = run("calibrate --data " + other + " --out " + tmp("never.yaml"));
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find("has no messages on /sun_sensor/image (topics in it: /chatter)"), std::string::npos)
+      << r.output;
+  EXPECT_FALSE(exists(tmp("never.yaml")));
+  r = run("eval --data " + small + " --estimator centroid:" + calib);
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find("is 256x256 mono8 but the sensor 'thesis_sa' is 512x512 mono8"), std::string::npos)
+      << r.output;
+  r = run("eval --data " + good + " --estimator centroid:/nonexistent/calib.yaml");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find("/nonexistent/calib.yaml"), std::string::npos) << r.output;
+  r = run("eval --data " + good + " --estimator magic:" + calib);
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.output.find("sscnn:MODEL or centroid:CALIB"), std::string::npos) << r.output;
+  r = run("eval --data " + good + " --estimator sscnn:" + calib);
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find(calib), std::string::npos) << r.output;
+  for (const auto& f : {empty, junk, good, cut, other, small, calib}) std::remove(f.c_str());
 }
 
 // The JSON line carries each key with a positive number.

@@ -13,6 +13,8 @@ namespace dss::cli {
 int runGenerate(int argc, char** argv);
 int runBench(int argc, char** argv);
 int runRender(int argc, char** argv);
+int runCalibrate(int argc, char** argv);
+int runEval(int argc, char** argv);
 // dss bench infer | train (cmd_bench_nn.cpp: the only CLI file that includes libtorch).
 int runBenchInfer(int argc, char** argv);
 int runBenchTrain(int argc, char** argv);

@@ -1,12 +1,15 @@
 #include "digital_sun_sensor/ros/bag_io.h"
 
-#include "digital_sun_sensor/ros/conversions.h"
-
 #include <rosbag/bag.h>
+#include <rosbag/view.h>
 #include <std_msgs/String.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <map>
 #include <stdexcept>
+
+#include "digital_sun_sensor/ros/conversions.h"
 
 namespace dss {
 
@@ -49,6 +52,93 @@ void DatasetBagWriter::commit() {
   if (std::rename(partial_.c_str(), path_.c_str()) != 0) {
     throw std::runtime_error("cannot rename '" + partial_ + "' to '" + path_ + "'");
   }
+}
+
+}  // namespace dss
+
+namespace dss {
+
+DatasetBagReader::DatasetBagReader(std::vector<std::string> paths, DatasetTopics topics)
+    : paths_(std::move(paths)), topics_(std::move(topics)) {
+  if (paths_.empty()) throw BagError("no bag given");
+  for (const auto& path : paths_) {
+    rosbag::Bag bag;
+    try {
+      bag.open(path, rosbag::bagmode::Read);
+    } catch (const rosbag::BagException& e) {
+      throw BagError("cannot read bag '" + path + "': " + e.what());
+    }
+    try {
+      rosbag::View all(bag);
+      std::vector<std::string> present;
+      for (const auto* c : all.getConnections()) present.push_back(c->topic);
+      for (const auto& needed : {topics_.image, topics_.truth}) {
+        if (std::find(present.begin(), present.end(), needed) != present.end()) continue;
+        std::string list;
+        for (const auto& t : present) list += (list.empty() ? "" : ", ") + t;
+        throw BagError("bag '" + path + "' has no messages on " + needed +
+                       " (topics in it: " + (list.empty() ? "none" : list) + ")");
+      }
+      rosbag::View images(bag, rosbag::TopicQuery(topics_.image));
+      image_messages_ += images.size();
+      if (!info_yaml_) {
+        rosbag::View info(bag, rosbag::TopicQuery(topics_.info));
+        for (const auto& m : info) {
+          if (const auto s = m.instantiate<std_msgs::String>()) info_yaml_ = s->data;
+          break;
+        }
+      }
+    } catch (const rosbag::BagException& e) {
+      throw BagError("bag '" + path + "' is damaged: " + e.what());
+    }
+  }
+}
+
+BagReadStats DatasetBagReader::forEach(const std::function<bool(const LabelledImage&)>& sink) const {
+  BagReadStats stats;
+  for (const auto& path : paths_) {
+    try {
+      rosbag::Bag bag(path, rosbag::bagmode::Read);
+      // Truth messages are small: index them by stamp, then stream the images.
+      std::map<ros::Time, digital_sun_sensor::SunAngles> truths;
+      for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(topics_.truth))) {
+        if (const auto t = m.instantiate<digital_sun_sensor::SunAngles>()) truths[t->header.stamp] = *t;
+      }
+      std::uint64_t matched_here = 0;
+      for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(topics_.image))) {
+        const auto msg = m.instantiate<sensor_msgs::Image>();
+        if (!msg) {
+          if (stats.first_bad_image.empty())
+            stats.first_bad_image = "a message on " + topics_.image + " is not an Image";
+          ++stats.bad_images;
+          continue;
+        }
+        const auto truth = truths.find(msg->header.stamp);
+        if (truth == truths.end()) {
+          ++stats.unmatched_images;
+          continue;
+        }
+        LabelledImage item;
+        try {
+          item.image = imageFromMsg(*msg);
+        } catch (const std::invalid_argument& e) {
+          if (stats.first_bad_image.empty()) stats.first_bad_image = e.what();
+          ++stats.bad_images;
+          continue;
+        }
+        item.bag = path;
+        item.index = stats.pairs++;
+        item.stamp = msg->header.stamp;
+        item.truth = truth->second;
+        ++matched_here;
+        if (!sink(item)) return stats;
+      }
+      stats.unmatched_truths += truths.size() - std::min<std::uint64_t>(truths.size(), matched_here);
+    } catch (const rosbag::BagException& e) {
+      throw BagError("bag '" + path + "' is damaged: " + e.what());
+    }
+  }
+  return stats;
 }
 
 }  // namespace dss

@@ -25,6 +25,32 @@ sensor_msgs::Image toImageMsg(const cv::Mat& image, const std_msgs::Header& head
   return msg;
 }
 
+cv::Mat imageFromMsg(const sensor_msgs::Image& msg) {
+  int type = -1;
+  if (msg.encoding == "mono8" || msg.encoding == "8UC1") type = CV_8UC1;
+  if (msg.encoding == "mono16" || msg.encoding == "16UC1") type = CV_16UC1;
+  if (type < 0) throw std::invalid_argument("encoding '" + msg.encoding + "' is not mono8 or mono16");
+  if (msg.width == 0 || msg.height == 0) throw std::invalid_argument("image has zero width or height");
+  const std::size_t bytes_per_px = type == CV_8UC1 ? 1 : 2;
+  if (msg.step < msg.width * bytes_per_px)
+    throw std::invalid_argument("row step " + std::to_string(msg.step) + " is shorter than " +
+                                std::to_string(msg.width) + " pixels");
+  if (msg.data.size() < static_cast<std::size_t>(msg.step) * msg.height)
+    throw std::invalid_argument("data holds " + std::to_string(msg.data.size()) + " bytes, " +
+                                std::to_string(msg.width) + "x" + std::to_string(msg.height) + " " + msg.encoding +
+                                " needs " + std::to_string(static_cast<std::size_t>(msg.step) * msg.height));
+  cv::Mat image(static_cast<int>(msg.height), static_cast<int>(msg.width), type);
+  for (int r = 0; r < image.rows; ++r) std::memcpy(image.ptr(r), &msg.data[r * msg.step], msg.width * bytes_per_px);
+  // Host byte order is little-endian here; swap big-endian 16-bit data.
+  if (type == CV_16UC1 && msg.is_bigendian) {
+    for (int r = 0; r < image.rows; ++r) {
+      auto* p = image.ptr<std::uint16_t>(r);
+      for (int c = 0; c < image.cols; ++c) p[c] = static_cast<std::uint16_t>((p[c] >> 8) | (p[c] << 8));
+    }
+  }
+  return image;
+}
+
 bool insideFieldOfView(const SensorConfig& config, double alpha_rad, double beta_rad) {
   constexpr double kRad = M_PI / 180.0;
   return std::abs(alpha_rad) <= config.fov.alpha_max_deg * kRad && std::abs(beta_rad) <= config.fov.beta_max_deg * kRad;

@@ -1,7 +1,7 @@
 #include "digital_sun_sensor/sim/geometry.h"
 
 #include <Eigen/Geometry>
-
+#include <algorithm>
 #include <cmath>
 
 namespace dss {
@@ -16,23 +16,24 @@ SunAnglesRad anglesFromSunVector(const Eigen::Vector3d& sun) {
   return {std::atan2(sun.x(), sun.z()), std::atan2(sun.y(), sun.z())};
 }
 
-int quadrantClass(double alpha_rad, double beta_rad) {
-  return (alpha_rad >= 0.0 ? 1 : 0) + (beta_rad >= 0.0 ? 2 : 0);
-}
+int quadrantClass(double alpha_rad, double beta_rad) { return (alpha_rad >= 0.0 ? 1 : 0) + (beta_rad >= 0.0 ? 2 : 0); }
 
 std::optional<Eigen::Vector2d> traceToDetector(const Eigen::Vector3d& aperture_um, const Eigen::Vector3d& sun,
                                                const GlassSlab& glass) {
   const Eigen::Vector3d s = sun.normalized();
   if (s.z() <= 1e-9) return std::nullopt;
-  const double air_um = aperture_um.z() - glass.thickness_um;
-  if (air_um < 0.0) return std::nullopt;
+  if (aperture_um.z() < 0.0) return std::nullopt;
+  // A mask resting on the glass with a negative height error sits on a
+  // thinner slab: the glass never extends above the aperture.
+  const double glass_um = std::min(glass.thickness_um, aperture_um.z());
+  const double air_um = aperture_um.z() - glass_um;
   // The light travels along -s: lateral drift per unit drop is s_xy / s_z.
   Eigen::Vector2d hit = aperture_um.head<2>() - air_um * s.head<2>() / s.z();
-  if (glass.thickness_um > 0.0) {
+  if (glass_um > 0.0) {
     const double sin_air = s.head<2>().norm();
     const double sin_glass = sin_air / glass.refractive_index;
     const double cos_glass = std::sqrt(1.0 - sin_glass * sin_glass);
-    if (sin_air > 0.0) hit -= glass.thickness_um * (sin_glass / cos_glass) * s.head<2>() / sin_air;
+    if (sin_air > 0.0) hit -= glass_um * (sin_glass / cos_glass) * s.head<2>() / sin_air;
   }
   return hit;
 }

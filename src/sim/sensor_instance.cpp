@@ -1,11 +1,10 @@
 #include "digital_sun_sensor/sim/sensor_instance.h"
 
-#include "digital_sun_sensor/common/random.h"
-
 #include <Eigen/Geometry>
-
 #include <algorithm>
 #include <cmath>
+
+#include "digital_sun_sensor/common/random.h"
 
 namespace dss {
 namespace {
@@ -22,7 +21,8 @@ double occluderRadiusFor(double a, double d, double fraction) {
     if (d + r <= a) return (r * r) / (a * a);
     const double alpha = std::acos((d * d + a * a - r * r) / (2 * d * a));
     const double beta = std::acos((d * d + r * r - a * a) / (2 * d * r));
-    const double lens = a * a * alpha + r * r * beta - 0.5 * std::sqrt(std::max(0.0, (-d + a + r) * (d + a - r) * (d - a + r) * (d + a + r)));
+    const double lens = a * a * alpha + r * r * beta -
+                        0.5 * std::sqrt(std::max(0.0, (-d + a + r) * (d + a - r) * (d - a + r) * (d + a + r)));
     return lens / (M_PI * a * a);
   };
   double lo = 0.0, hi = 3.0 * a;
@@ -34,6 +34,13 @@ double occluderRadiusFor(double a, double d, double fraction) {
 }
 
 }  // namespace
+
+Eigen::Matrix3d maskRotation(double rotation_rad, double tilt_x_rad, double tilt_y_rad) {
+  return (Eigen::AngleAxisd(tilt_y_rad, Eigen::Vector3d::UnitY()) *
+          Eigen::AngleAxisd(tilt_x_rad, Eigen::Vector3d::UnitX()) *
+          Eigen::AngleAxisd(rotation_rad, Eigen::Vector3d::UnitZ()))
+      .toRotationMatrix();
+}
 
 Eigen::Vector3d SensorInstance::apertureCentreUm(std::size_t i) const {
   const auto& a = apertures.at(i);
@@ -58,10 +65,7 @@ SensorInstance SensorInstance::draw(const SensorConfig& config, std::uint64_t se
   const double rot = rng.normal() * ab.rotation_sigma_deg * kDegToRad;
   const double tilt_x = rng.normal() * ab.tilt_sigma_deg * kDegToRad;
   const double tilt_y = rng.normal() * ab.tilt_sigma_deg * kDegToRad;
-  s.mask_rotation = (Eigen::AngleAxisd(tilt_y, Eigen::Vector3d::UnitY()) *
-                     Eigen::AngleAxisd(tilt_x, Eigen::Vector3d::UnitX()) *
-                     Eigen::AngleAxisd(rot, Eigen::Vector3d::UnitZ()))
-                        .toRotationMatrix();
+  s.mask_rotation = maskRotation(rot, tilt_x, tilt_y);
   s.mask_offset_um = Eigen::Vector3d(rng.normal() * ab.offset_sigma_um, rng.normal() * ab.offset_sigma_um,
                                      rng.normal() * ab.height_sigma_um);
   for (auto& a : s.apertures) {
@@ -81,8 +85,8 @@ SensorInstance SensorInstance::draw(const SensorConfig& config, std::uint64_t se
   Rng debris_rng(deriveSeed(seed, 0xDEB));
   for (auto& a : s.apertures) {
     if (debris_rng.uniform() >= an.debris_probability) continue;
-    const double radius = a.shape == ApertureShape::kCircle ? 0.5 * a.diameter_um
-                                                           : 0.5 * std::min(a.width_um, a.height_um);
+    const double radius =
+        a.shape == ApertureShape::kCircle ? 0.5 * a.diameter_um : 0.5 * std::min(a.width_um, a.height_um);
     const double fraction = debris_rng.uniform(0.02, std::max(0.021, an.debris_max_blocked_fraction));
     const double angle = debris_rng.uniform(0.0, 2.0 * M_PI);
     const double d = radius;  // centred on the rim
@@ -104,7 +108,8 @@ SensorInstance SensorInstance::draw(const SensorConfig& config, std::uint64_t se
   Rng hot(deriveSeed(seed, 0x407));
   const double log_lo = std::log(an.hot_pixel_min_e_per_s), log_hi = std::log(an.hot_pixel_max_e_per_s);
   for (int i = 0; i < an.hot_pixel_count; ++i) {
-    s.hot_pixels.push_back({static_cast<int>(hot.below(n_px)), static_cast<float>(std::exp(hot.uniform(log_lo, log_hi)))});
+    s.hot_pixels.push_back(
+        {static_cast<int>(hot.below(n_px)), static_cast<float>(std::exp(hot.uniform(log_lo, log_hi)))});
   }
   return s;
 }

@@ -17,6 +17,10 @@ using SpotCentres = digital_sun_sensor::SpotCentres;
 // mono8 for CV_8U, mono16 for CV_16U; throws std::invalid_argument otherwise.
 sensor_msgs::Image toImageMsg(const cv::Mat& image, const std_msgs::Header& header);
 
+// A copy of a mono8 / mono16 image (CV_8U / CV_16U); throws
+// std::invalid_argument naming the problem (encoding, size, short buffer).
+cv::Mat imageFromMsg(const sensor_msgs::Image& msg);
+
 SunAngles toTruthMsg(const ImageTruth& truth, const SensorConfig& config, const std_msgs::Header& header);
 SpotCentres toSpotsMsg(const ImageTruth& truth, const std_msgs::Header& header);
 

@@ -17,6 +17,9 @@ struct HotPixel {
   float dark_e_per_s = 0.0f;
 };
 
+// Mask attitude: rotation about the boresight, then tilts about x and y.
+Eigen::Matrix3d maskRotation(double rotation_rad, double tilt_x_rad, double tilt_y_rad);
+
 struct SensorInstance {
   SensorConfig config;
   std::uint64_t seed = 0;

@@ -1,0 +1,35 @@
+// What every sun estimator (SSCNN, centroid baseline) produces for one image,
+// and the interface evaluation and the nodes drive them through.
+#pragma once
+
+#include <array>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "digital_sun_sensor/sim/sensor_config.h"
+
+namespace dss {
+
+struct SunEstimate {
+  double alpha_rad = 0.0;
+  double beta_rad = 0.0;
+  std::array<double, 4> covariance{};  // row-major 2x2 of (alpha, beta) [rad^2]
+  int subfov_class = -1;
+  bool valid = false;
+  std::string status;  // empty when valid, else a short reason ("no_sun", ...)
+};
+
+class SunEstimator {
+ public:
+  virtual ~SunEstimator() = default;
+  // "sscnn", "centroid": the SunAngles.source of its estimates.
+  virtual std::string source() const = 0;
+  // The sensor design it was fitted or trained for.
+  virtual const SensorConfig& sensor() const = 0;
+  // One estimate per image, in order. Images that cannot be used (wrong size
+  // or encoding) give valid = false with the reason in status.
+  virtual std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) = 0;
+};
+
+}  // namespace dss

@@ -1,0 +1,48 @@
+// Cramer-Rao lower bound on the sun angles. Fisher information of the angles
+// from the noise-free expected image mu(theta) and the detector noise:
+//   I = sum_k (d mu_k / d theta)(d mu_k / d theta)^T / var_k,
+// var_k = mu_k (shot) + dark + read^2 + step^2 / 12 (quantisation) + (PRNU mu_k)^2,
+// which is exact for pure Poisson data and the usual Gaussian approximation
+// otherwise. The bound is for the raw readout: on-chip thresholding discards
+// information, so thresholded sensors sit well above it. Saturated pixels
+// (mu >= full well) carry no information and are left out.
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <memory>
+#include <opencv2/core.hpp>
+#include <vector>
+
+#include "digital_sun_sensor/sim/renderer.h"
+
+namespace dss {
+
+// Fisher information from a mean image and its derivatives (CV_32F or CV_64F,
+// same size) with a per-pixel variance law; pixels with mean >= `max_mean`
+// are skipped.
+Eigen::MatrixXd fisherInformation(const cv::Mat& mean, const std::vector<cv::Mat>& derivatives,
+                                  const std::function<double(double)>& variance,
+                                  double max_mean = std::numeric_limits<double>::infinity());
+
+class CrlbCalculator {
+ public:
+  // The nominal sensor of `config` without per-image anomalies.
+  explicit CrlbCalculator(const SensorConfig& config);
+  ~CrlbCalculator();
+
+  // Bound on the covariance of (alpha, beta) [rad^2] at a sun direction;
+  // infinite when the image holds no usable signal.
+  Eigen::Matrix2d covariance(double alpha_rad, double beta_rad) const;
+
+  // Per-pixel variance [e^2] for a mean signal [e].
+  double pixelVariance(double mean_e) const;
+
+ private:
+  std::unique_ptr<Renderer> renderer_;
+  double constant_variance_e2_ = 0.0;
+  double prnu_fraction_ = 0.0;
+  double dark_e_per_s_ = 0.0;
+};
+
+}  // namespace dss

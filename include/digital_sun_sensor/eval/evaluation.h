@@ -1,0 +1,53 @@
+// Accuracy of an estimator against ground truth: per-axis error statistics
+// over the images it marked valid, valid rate, sub-FOV accuracy, speed and the
+// ratio to the Cramer-Rao bound. One JSON line (DESIGN section 7) and a
+// per-sample CSV.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "digital_sun_sensor/common/sun_estimate.h"
+
+namespace dss {
+
+struct EvalRecord {
+  std::uint64_t index = 0;
+  double stamp_s = 0.0;
+  double alpha_true_rad = 0.0;
+  double beta_true_rad = 0.0;
+  int subfov_true = -1;
+  SunEstimate estimate;
+  // Cramer-Rao bound variances [rad^2] where computed (NaN otherwise).
+  double crlb_alpha_rad2 = std::numeric_limits<double>::quiet_NaN();
+  double crlb_beta_rad2 = std::numeric_limits<double>::quiet_NaN();
+};
+
+struct AxisStats {
+  double mean_deg = 0.0, rms_deg = 0.0, p99_deg = 0.0, max_deg = 0.0;
+};
+
+struct EvalSummary {
+  std::string estimator;
+  std::size_t n = 0;
+  std::size_t valid = 0;
+  AxisStats alpha, beta;
+  double subfov_accuracy = std::numeric_limits<double>::quiet_NaN();
+  double valid_rate = 0.0;
+  double ms_per_image = 0.0;
+  // RMS error over the bound's RMS on the images where both exist (NaN: none).
+  double crlb_ratio = std::numeric_limits<double>::quiet_NaN();
+  double crlb_rms_deg = std::numeric_limits<double>::quiet_NaN();
+  std::size_t crlb_samples = 0;
+
+  std::string toJson() const;  // one line, DESIGN section 7 keys first
+};
+
+EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string& estimator, double total_ms);
+
+// Per-sample CSV, written atomically.
+void writeEvalCsv(const std::string& path, const std::vector<EvalRecord>& records);
+
+}  // namespace dss

@@ -1,0 +1,28 @@
+// The SSCNN as a SunEstimator, behind a torch-free header so that nodes, the
+// CLI and evaluation code do not compile libtorch headers.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "digital_sun_sensor/common/sun_estimate.h"
+
+namespace dss {
+
+class SscnnEstimator : public SunEstimator {
+ public:
+  // Loads a model file (throws ModelError naming the problem); with
+  // `expected`, also checks that it was made for that sensor.
+  explicit SscnnEstimator(const std::string& model_path, const SensorConfig* expected = nullptr);
+  ~SscnnEstimator() override;
+
+  std::string source() const override { return "sscnn"; }
+  const SensorConfig& sensor() const override;
+  std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace dss

@@ -1,0 +1,75 @@
+#include "digital_sun_sensor/baseline/centroid_estimator.h"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <limits>
+
+#include "digital_sun_sensor/model/input_spec.h"
+#include "digital_sun_sensor/sim/geometry.h"
+
+namespace dss {
+
+CentroidEstimator::CentroidEstimator(Calibration calibration)
+    : calibration_(std::move(calibration)),
+      association_(AssociationOptions::forSensor(calibration_.sensor, calibration_.geometry)) {}
+
+std::vector<SunEstimate> CentroidEstimator::estimate(const std::vector<cv::Mat>& images) {
+  std::vector<SunEstimate> out;
+  out.reserve(images.size());
+  for (const auto& image : images) out.push_back(estimateOne(image));
+  return out;
+}
+
+SunEstimate CentroidEstimator::estimateOne(const cv::Mat& image, std::vector<DetectedSpot>* spots_out) const {
+  SunEstimate est;
+  try {
+    inputSpecFor(calibration_.sensor).checkImage(image);
+  } catch (const std::invalid_argument& ex) {
+    est.status = std::string("bad_image: ") + ex.what();
+    return est;
+  }
+  const std::vector<DetectedSpot> spots = extractSpots(image, calibration_.extraction);
+  if (spots_out) *spots_out = spots;
+  if (spots.empty()) {
+    est.status = "no_sun";
+    return est;
+  }
+  if (std::all_of(spots.begin(), spots.end(), [](const DetectedSpot& s) { return s.touches_edge; })) {
+    est.status = "spot_at_edge";
+    return est;
+  }
+  const MaskGeometry& geometry = calibration_.geometry;
+  const auto association = associateSpots(geometry, spots, association_);
+  if (!association) {
+    est.status = "no_match";
+    return est;
+  }
+  const SunSolution& s = association->solution;
+  const Eigen::Vector2d correction = calibration_.polynomial.correction(s.alpha_rad, s.beta_rad);
+  est.alpha_rad = s.alpha_rad + correction.x();
+  est.beta_rad = s.beta_rad + correction.y();
+  // Centroid noise through the least-squares solution: sigma^2 (J^T J)^-1.
+  const double sigma = calibration_.centroid_sigma_px;
+  const Eigen::Matrix2d cov = sigma * sigma * s.normal_matrix.inverse();
+  est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
+  if (calibration_.sensor.subfov == SubFovType::kQuadrant) {
+    est.subfov_class = quadrantClass(est.alpha_rad, est.beta_rad);
+  } else {
+    const Eigen::Vector3d sun = sunVectorFromAngles(est.alpha_rad, est.beta_rad);
+    double best = std::numeric_limits<double>::max();
+    for (int i = 0; i < geometry.numApertures(); ++i) {
+      const auto p = geometry.spotPx(i, sun);
+      if (p && p->squaredNorm() < best) best = p->squaredNorm(), est.subfov_class = i;
+    }
+  }
+  // Several spots that disagree beyond their noise: a wrong match or an anomaly.
+  if (association->observations.size() > 1 && s.rms_px > 10.0 * sigma + 0.5) {
+    est.status = "inconsistent_spots";
+    return est;
+  }
+  est.valid = cov.allFinite();
+  if (!est.valid) est.status = "degenerate";
+  return est;
+}
+
+}  // namespace dss

@@ -1,0 +1,131 @@
+#include <atomic>
+#include <chrono>
+#include <iostream>
+#include <memory>
+#include <thread>
+
+#include "commands.h"
+#include "dataset_source.h"
+#include "digital_sun_sensor/baseline/centroid_estimator.h"
+#include "digital_sun_sensor/eval/crlb.h"
+#include "digital_sun_sensor/eval/evaluation.h"
+#include "digital_sun_sensor/model/sscnn_estimator.h"
+#include "digital_sun_sensor/sparse/threads.h"
+#include "progress.h"
+
+namespace dss::cli {
+namespace {
+
+std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec) {
+  const auto colon = spec.find(':');
+  const std::string kind = spec.substr(0, colon), path = colon == std::string::npos ? "" : spec.substr(colon + 1);
+  if (path.empty() || (kind != "centroid" && kind != "sscnn"))
+    throw UsageError("dss eval: --estimator must be sscnn:MODEL or centroid:CALIB, got '" + spec + "'");
+  if (kind == "centroid") return std::make_unique<CentroidEstimator>(loadCalibration(path));
+  return std::make_unique<SscnnEstimator>(path);
+}
+
+// Bounds for every `stride`-th record on `threads` threads.
+void computeBounds(std::vector<EvalRecord>& records, const SensorConfig& config, std::size_t max_samples, int threads) {
+  if (max_samples == 0 || records.empty()) return;
+  const std::size_t stride = std::max<std::size_t>(1, (records.size() + max_samples - 1) / max_samples);
+  std::vector<std::size_t> picked;
+  for (std::size_t i = 0; i < records.size(); i += stride) picked.push_back(i);
+  const CrlbCalculator crlb(config);
+  Progress progress("eval: crlb", picked.size());
+  std::atomic<std::size_t> next{0}, done{0};
+  auto work = [&] {
+    for (std::size_t k; (k = next++) < picked.size();) {
+      EvalRecord& r = records[picked[k]];
+      const Eigen::Matrix2d cov = crlb.covariance(r.alpha_true_rad, r.beta_true_rad);
+      r.crlb_alpha_rad2 = cov(0, 0);
+      r.crlb_beta_rad2 = cov(1, 1);
+      ++done;
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(work);
+  // The calling thread works too and reports progress between items.
+  for (std::size_t k; (k = next++) < picked.size();) {
+    EvalRecord& r = records[picked[k]];
+    const Eigen::Matrix2d cov = crlb.covariance(r.alpha_true_rad, r.beta_true_rad);
+    r.crlb_alpha_rad2 = cov(0, 0);
+    r.crlb_beta_rad2 = cov(1, 1);
+    progress.update(++done);
+  }
+  for (auto& t : pool) t.join();
+  progress.finish();
+}
+
+}  // namespace
+
+int runEval(int argc, char** argv) {
+  const std::string threads = std::to_string(std::max(1u, std::thread::hardware_concurrency()));
+  Args args("dss eval",
+            "Evaluates an estimator on a labelled dataset bag; prints one JSON line (DESIGN section 7).\n"
+            "Errors are |estimate - truth| over the images the estimator marked valid.",
+            {
+                {"data", "BAG", "dataset bag(s) of /sun_sensor/image + /sun_sensor/truth", "", true, true},
+                {"estimator", "KIND:FILE", "sscnn:MODEL or centroid:CALIB", "", true, false},
+                {"csv", "FILE", "also write one CSV row per image", "", false, false},
+                {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images (0: skip)", "200", false, false},
+                {"batch", "B", "images per estimator call", "16", false, false},
+                {"max-images", "N", "evaluate at most N images (0: all)", "0", false, false},
+                {"threads", "T", "threads for the bound", threads, false, false},
+            });
+  if (!args.parse(argc, argv, 2)) return 0;
+  sparse::configureThreads(1, 1);  // per-image inference is fastest single-threaded (README)
+  const DatasetBagReader reader(args.all("data"));
+  const std::unique_ptr<SunEstimator> estimator = makeEstimator(args.get("estimator"));
+  const SensorConfig& sensor = estimator->sensor();
+  const auto batch_size = static_cast<std::size_t>(std::max(1LL, args.getInt("batch")));
+  const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
+
+  std::vector<EvalRecord> records;
+  std::vector<cv::Mat> batch;
+  double estimator_ms = 0.0;
+  auto flush = [&] {
+    if (batch.empty()) return;
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::vector<SunEstimate> estimates = estimator->estimate(batch);
+    estimator_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    for (std::size_t k = 0; k < estimates.size(); ++k)
+      records[records.size() - batch.size() + k].estimate = estimates[k];
+    batch.clear();
+  };
+  Progress progress("eval: " + estimator->source(),
+                    max_images ? std::min(max_images, reader.imageMessages()) : reader.imageMessages());
+  const BagReadStats stats = reader.forEach([&](const LabelledImage& item) {
+    checkImageFitsSensor(item, sensor);
+    EvalRecord r;
+    r.index = item.index;
+    r.stamp_s = item.stamp.toSec();
+    r.alpha_true_rad = item.truth.alpha;
+    r.beta_true_rad = item.truth.beta;
+    r.subfov_true = item.truth.subfov_class;
+    records.push_back(r);
+    batch.push_back(item.image);
+    if (batch.size() >= batch_size) flush();
+    progress.update(item.index + 1);
+    return max_images == 0 || item.index + 1 < max_images;
+  });
+  flush();
+  progress.finish();
+  std::cerr << "read " << describe(stats) << "\n";
+  if (records.empty()) throw std::runtime_error("no image/truth pairs in the data");
+
+  // The bound needs the sensor that rendered the data: the bag's own config when it has one.
+  const std::optional<SensorConfig> rendered = sensorFromBagInfo(reader);
+  computeBounds(records, rendered ? *rendered : sensor, static_cast<std::size_t>(args.getInt("crlb-samples")),
+                static_cast<int>(args.getInt("threads")));
+
+  const EvalSummary summary = summarize(records, estimator->source(), estimator_ms);
+  if (args.has("csv")) {
+    writeEvalCsv(args.get("csv"), records);
+    std::cerr << "wrote " << records.size() << " rows to " << args.get("csv") << "\n";
+  }
+  std::cout << summary.toJson() << std::endl;
+  return 0;
+}
+
+}  // namespace dss::cli

@@ -1,0 +1,124 @@
+#include "digital_sun_sensor/eval/evaluation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <sstream>
+
+#include "digital_sun_sensor/common/file_io.h"
+
+namespace dss {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+
+AxisStats axisStats(std::vector<double> errors_deg) {
+  AxisStats s;
+  if (errors_deg.empty()) return s;
+  double sum = 0.0, sum_sq = 0.0;
+  for (double e : errors_deg) sum += e, sum_sq += e * e;
+  s.mean_deg = sum / errors_deg.size();
+  s.rms_deg = std::sqrt(sum_sq / errors_deg.size());
+  std::sort(errors_deg.begin(), errors_deg.end());
+  const std::size_t p99 = static_cast<std::size_t>(std::ceil(0.99 * errors_deg.size())) - 1;
+  s.p99_deg = errors_deg[std::min(p99, errors_deg.size() - 1)];
+  s.max_deg = errors_deg.back();
+  return s;
+}
+
+// JSON number, or null for NaN / infinity.
+std::string number(double v) {
+  if (!std::isfinite(v)) return "null";
+  std::ostringstream os;
+  os << std::setprecision(6) << v;
+  return os.str();
+}
+
+std::string quoted(const std::string& s) {
+  std::string out = "\"";
+  for (char c : s) {
+    if (c == '"' || c == '\\') out += '\\';
+    out += c;
+  }
+  return out + "\"";
+}
+
+std::string csvField(std::string s) {
+  std::replace(s.begin(), s.end(), ',', ';');
+  std::replace(s.begin(), s.end(), '\n', ' ');
+  return s;
+}
+
+}  // namespace
+
+EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string& estimator, double total_ms) {
+  EvalSummary s;
+  s.estimator = estimator;
+  s.n = records.size();
+  std::vector<double> ea, eb;
+  std::size_t class_known = 0, class_right = 0;
+  double err_sq = 0.0, bound_sq = 0.0;
+  for (const auto& r : records) {
+    if (!r.estimate.valid) continue;
+    ++s.valid;
+    const double a = std::abs(r.estimate.alpha_rad - r.alpha_true_rad),
+                 b = std::abs(r.estimate.beta_rad - r.beta_true_rad);
+    ea.push_back(a * kRadToDeg);
+    eb.push_back(b * kRadToDeg);
+    if (r.subfov_true >= 0) {
+      ++class_known;
+      class_right += r.estimate.subfov_class == r.subfov_true;
+    }
+    if (std::isfinite(r.crlb_alpha_rad2) && std::isfinite(r.crlb_beta_rad2)) {
+      ++s.crlb_samples;
+      err_sq += a * a + b * b;
+      bound_sq += r.crlb_alpha_rad2 + r.crlb_beta_rad2;
+    }
+  }
+  s.alpha = axisStats(ea);
+  s.beta = axisStats(eb);
+  s.valid_rate = s.n ? static_cast<double>(s.valid) / s.n : 0.0;
+  if (class_known) s.subfov_accuracy = static_cast<double>(class_right) / class_known;
+  s.ms_per_image = s.n ? total_ms / s.n : 0.0;
+  if (s.crlb_samples && bound_sq > 0.0) {
+    s.crlb_ratio = std::sqrt(err_sq / bound_sq);
+    s.crlb_rms_deg = std::sqrt(bound_sq / (2.0 * s.crlb_samples)) * kRadToDeg;
+  }
+  return s;
+}
+
+std::string EvalSummary::toJson() const {
+  std::ostringstream os;
+  os << "{\"estimator\": " << quoted(estimator) << ", \"n\": " << n;
+  const std::pair<const char*, const AxisStats*> axes[] = {{"alpha", &alpha}, {"beta", &beta}};
+  for (const auto& [name, st] : axes) {
+    os << ", \"" << name << "_mean_deg\": " << number(valid ? st->mean_deg : NAN) << ", \"" << name
+       << "_rms_deg\": " << number(valid ? st->rms_deg : NAN) << ", \"" << name
+       << "_p99_deg\": " << number(valid ? st->p99_deg : NAN) << ", \"" << name
+       << "_max_deg\": " << number(valid ? st->max_deg : NAN);
+  }
+  os << ", \"subfov_accuracy\": " << number(subfov_accuracy) << ", \"valid_rate\": " << number(valid_rate)
+     << ", \"ms_per_image\": " << number(ms_per_image) << ", \"crlb_ratio\": " << number(crlb_ratio)
+     << ", \"crlb_rms_deg\": " << number(crlb_rms_deg) << ", \"crlb_samples\": " << crlb_samples << "}";
+  return os.str();
+}
+
+void writeEvalCsv(const std::string& path, const std::vector<EvalRecord>& records) {
+  std::ostringstream os;
+  os << std::setprecision(10);
+  os << "index,stamp_s,alpha_true_deg,beta_true_deg,alpha_est_deg,beta_est_deg,alpha_error_deg,beta_error_deg,"
+        "alpha_sigma_deg,beta_sigma_deg,valid,status,subfov_true,subfov_est,crlb_alpha_deg,crlb_beta_deg\n";
+  for (const auto& r : records) {
+    const auto& e = r.estimate;
+    os << r.index << ',' << r.stamp_s << ',' << r.alpha_true_rad * kRadToDeg << ',' << r.beta_true_rad * kRadToDeg
+       << ',' << e.alpha_rad * kRadToDeg << ',' << e.beta_rad * kRadToDeg << ','
+       << (e.alpha_rad - r.alpha_true_rad) * kRadToDeg << ',' << (e.beta_rad - r.beta_true_rad) * kRadToDeg << ','
+       << std::sqrt(std::max(0.0, e.covariance[0])) * kRadToDeg << ','
+       << std::sqrt(std::max(0.0, e.covariance[3])) * kRadToDeg << ',' << (e.valid ? 1 : 0) << ',' << csvField(e.status)
+       << ',' << r.subfov_true << ',' << e.subfov_class << ',' << std::sqrt(r.crlb_alpha_rad2) * kRadToDeg << ','
+       << std::sqrt(r.crlb_beta_rad2) * kRadToDeg << '\n';
+  }
+  writeFileAtomic(path, os.str());
+}
+
+}  // namespace dss

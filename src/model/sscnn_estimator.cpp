@@ -1,0 +1,53 @@
+#include "digital_sun_sensor/model/sscnn_estimator.h"
+
+#include <stdexcept>
+
+#include "digital_sun_sensor/model/model.h"
+
+namespace dss {
+
+struct SscnnEstimator::Impl {
+  Model model;
+  SensorConfig sensor;
+};
+
+SscnnEstimator::SscnnEstimator(const std::string& model_path, const SensorConfig* expected)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->model = loadModel(model_path, expected);
+  impl_->sensor = parseSensorConfig(impl_->model.meta.sensor_yaml, model_path + " (sensor)");
+}
+
+SscnnEstimator::~SscnnEstimator() = default;
+
+const SensorConfig& SscnnEstimator::sensor() const { return impl_->sensor; }
+
+std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& images) {
+  std::vector<SunEstimate> out(images.size());
+  // Unusable images are answered individually; the rest run as one batch.
+  std::vector<cv::Mat> usable;
+  std::vector<std::size_t> where;
+  for (std::size_t i = 0; i < images.size(); ++i) {
+    try {
+      impl_->model.meta.input.checkImage(images[i]);
+      usable.push_back(images[i]);
+      where.push_back(i);
+    } catch (const std::invalid_argument& e) {
+      out[i].status = std::string("bad_image: ") + e.what();
+    }
+  }
+  if (usable.empty()) return out;
+  const std::vector<Prediction> predictions = impl_->model.predict(usable);
+  for (std::size_t k = 0; k < predictions.size(); ++k) {
+    const Prediction& p = predictions[k];
+    SunEstimate& e = out[where[k]];
+    e.alpha_rad = p.alpha_rad;
+    e.beta_rad = p.beta_rad;
+    e.covariance = {p.alpha_variance_rad2, 0.0, 0.0, p.beta_variance_rad2};
+    e.subfov_class = p.subfov_class;
+    e.valid = p.active_sites > 0;
+    if (!e.valid) e.status = "no_sun";
+  }
+  return out;
+}
+
+}  // namespace dss
