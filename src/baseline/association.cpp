@@ -14,7 +14,7 @@ struct Matching {
   std::vector<SpotObservation> observations;
   std::vector<int> spot_indices;
   int misses = 0;
-  int edge_support = 0;  // detections cut by the edge that a predicted spot explains
+  double evidence = 0.0;  // detections and misses, without spot sizes
   double size_penalty = 0.0;
   double sum_sq_px = 0.0;
 };
@@ -45,7 +45,6 @@ Matching matchPattern(const MaskGeometry& geometry, const std::vector<DetectedSp
       }
     }
   }
-  m.edge_support = static_cast<int>(std::count(edge_explained.begin(), edge_explained.end(), true));
   std::sort(pairs.begin(), pairs.end(), [](const Pair& a, const Pair& b) { return a.d2 < b.d2; });
   std::vector<bool> aperture_used(geometry.numApertures(), false), spot_used(spots.size(), false);
   for (const auto& p : pairs) {
@@ -55,7 +54,19 @@ Matching matchPattern(const MaskGeometry& geometry, const std::vector<DetectedSp
     m.spot_indices.push_back(p.spot);
     m.sum_sq_px += p.d2;
   }
-  for (int i = 0; i < geometry.numApertures(); ++i) m.misses += on_detector[i] && !explained[i];
+  // Evidence: a detection an aperture explains counts up to 1 (less for an
+  // aperture rarely seen: a dim spot is a weaker match), an edge-cut one
+  // half; a missing spot counts against in proportion to how often it is seen.
+  auto probability = [&](int i) {
+    return options.detection_probability.empty() ? 1.0 : std::clamp(options.detection_probability[i], 0.0, 1.0);
+  };
+  for (const auto& o : m.observations) m.evidence += 0.5 + 0.5 * probability(o.aperture);
+  m.evidence += 0.5 * static_cast<double>(std::count(edge_explained.begin(), edge_explained.end(), true));
+  for (int i = 0; i < geometry.numApertures(); ++i) {
+    if (!on_detector[i] || explained[i]) continue;
+    ++m.misses;
+    m.evidence -= 0.5 * probability(i);
+  }
   if (use_sizes && m.observations.size() >= 2) {
     // Spot area scales with aperture area: compare log ratios about their mean.
     std::vector<double> log_ratio;
@@ -113,8 +124,7 @@ std::optional<Association> associateSpots(const MaskGeometry& geometry, const st
       if (!insideFov(guess, options)) continue;
       const Eigen::Vector3d sun = sunVectorFromAngles(guess.alpha_rad, guess.beta_rad);
       const Matching m = matchPattern(geometry, spots, sun, options, sizes_differ);
-      const double score = static_cast<double>(m.observations.size()) + options.edge_weight * m.edge_support -
-                           options.miss_weight * m.misses - options.size_weight * m.size_penalty;
+      const double score = m.evidence - options.size_weight * m.size_penalty;
       if (score > best_score || (score == best_score && m.sum_sq_px < best_sq)) {
         best_score = score;
         best_sq = m.sum_sq_px;

@@ -244,6 +244,25 @@ CalibrationFitReport fitCalibration(const std::vector<CalibrationSample>& sample
   report.iterations += fit.run(p, obs, options.max_iterations);
   obs = associateAll(apply(base, p), samples, assoc.gate_px);
 
+  // How often each aperture's spot is seen when its centre is on the detector
+  // (Laplace-smoothed): association weighs a missing spot by it.
+  {
+    const MaskGeometry fitted = apply(base, p);
+    std::vector<int> predicted(n_ap, 0), seen(n_ap, 0);
+    std::vector<std::vector<bool>> matched(samples.size(), std::vector<bool>(n_ap, false));
+    for (const auto& o : obs) matched[o.sample][o.spot.aperture] = true;
+    for (std::size_t s = 0; s < samples.size(); ++s) {
+      for (int i = 0; i < n_ap; ++i) {
+        const auto q = fitted.spotPx(i, samples[s].sun);
+        if (!q || !fitted.insideDetector(*q, assoc.edge_margin_px)) continue;
+        ++predicted[i];
+        seen[i] += matched[s][i];
+      }
+    }
+    calibration.detection_rate.assign(n_ap, 1.0);
+    for (int i = 0; i < n_ap; ++i) calibration.detection_rate[i] = (seen[i] + 1.0) / (predicted[i] + 2.0);
+  }
+
   // Drop outliers (debris-cut or merged spots) and refit.
   const std::vector<double> norms = fit.residualNorms(p, obs);
   const double sigma = robustSigma(norms);

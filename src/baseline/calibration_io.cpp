@@ -67,7 +67,10 @@ std::string toYaml(const Calibration& c) {
   out << YAML::Key << "apertures" << YAML::Value << YAML::BeginSeq;
   for (int i = 0; i < g.numApertures(); ++i) {
     out << YAML::Flow << YAML::BeginMap << YAML::Key << "x_um" << YAML::Value << g.apertures_um[i].x() << YAML::Key
-        << "y_um" << YAML::Value << g.apertures_um[i].y() << YAML::EndMap;
+        << "y_um" << YAML::Value << g.apertures_um[i].y();
+    if (i < static_cast<int>(c.detection_rate.size()))
+      out << YAML::Key << "detection_rate" << YAML::Value << c.detection_rate[i];
+    out << YAML::EndMap;
   }
   out << YAML::EndSeq << YAML::EndMap;
   const auto& p = c.polynomial;
@@ -142,6 +145,12 @@ Calibration parseCalibration(const std::string& yaml_text, const std::string& or
     const std::string aw = gw + ".apertures[" + std::to_string(i) + "]";
     geo.apertures_um[i] = Eigen::Vector2d(finite(required<double>(apertures[i], "x_um", aw), aw + ".x_um"),
                                           finite(required<double>(apertures[i], "y_um", aw), aw + ".y_um"));
+    if (apertures[i]["detection_rate"]) {
+      const double rate = required<double>(apertures[i], "detection_rate", aw);
+      if (!(rate >= 0.0 && rate <= 1.0)) throw CalibrationError(aw + ".detection_rate must be in [0, 1]");
+      c.detection_rate.resize(geo.numApertures(), 1.0);
+      c.detection_rate[i] = rate;
+    }
   }
 
   const std::string pw = origin + ": residual_polynomial";

@@ -11,7 +11,9 @@ namespace dss {
 
 CentroidEstimator::CentroidEstimator(Calibration calibration)
     : calibration_(std::move(calibration)),
-      association_(AssociationOptions::forSensor(calibration_.sensor, calibration_.geometry)) {}
+      association_(AssociationOptions::forSensor(calibration_.sensor, calibration_.geometry)) {
+  association_.detection_probability = calibration_.detection_rate;
+}
 
 std::vector<SunEstimate> CentroidEstimator::estimate(const std::vector<cv::Mat>& images) {
   std::vector<SunEstimate> out;

@@ -88,36 +88,25 @@ SpotExtractionConfig SpotExtractionConfig::forSensor(const SensorConfig& config)
   return out;
 }
 
-std::vector<DetectedSpot> extractSpots(const cv::Mat& image, const SpotExtractionConfig& config,
-                                       ExtractionStats* stats) {
+std::vector<DetectedSpot> extractSpots(const cv::Mat& image, const SpotExtractionConfig& config) {
   if (image.empty() || image.channels() != 1 || (image.depth() != CV_8U && image.depth() != CV_16U))
     throw std::invalid_argument("spot extraction needs a non-empty single-channel 8- or 16-bit image");
   const int max_code = image.depth() == CV_8U ? 255 : 65535;
-  ExtractionStats local;
   cv::Mat values;
   image.convertTo(values, CV_64F);
   double peak = 0.0;
   cv::minMaxLoc(values, nullptr, &peak);
   const double background = medianCode(image, max_code);
   const double level = std::max(config.threshold_dn, background + config.relative_threshold * (peak - background));
-  local.saturated_px = cv::countNonZero(values >= max_code);
 
   cv::Mat mask = values > level, labels, box_stats, centroids;
   const int count = cv::connectedComponentsWithStats(mask, labels, box_stats, centroids, 8, CV_32S);
-  local.components = count - 1;
 
-  struct Candidate {
-    DetectedSpot spot;
-    int label;
-  };
-  std::vector<Candidate> candidates;
+  std::vector<DetectedSpot> candidates;
   const double half_w = 0.5 * (image.cols - 1), half_h = 0.5 * (image.rows - 1);
   for (int k = 1; k < count; ++k) {
     const int area = box_stats.at<int>(k, cv::CC_STAT_AREA);
-    if (area < config.min_area_px) {
-      ++local.rejected_small;
-      continue;
-    }
+    if (area < config.min_area_px) continue;
     const cv::Rect box(box_stats.at<int>(k, cv::CC_STAT_LEFT), box_stats.at<int>(k, cv::CC_STAT_TOP),
                        box_stats.at<int>(k, cv::CC_STAT_WIDTH), box_stats.at<int>(k, cv::CC_STAT_HEIGHT));
     DetectedSpot spot;
@@ -157,23 +146,16 @@ std::vector<DetectedSpot> extractSpots(const cv::Mat& image, const SpotExtractio
     }
     spot.x_px = cx - half_w;
     spot.y_px = cy - half_h;
-    candidates.push_back({spot, k});
+    candidates.push_back(spot);
   }
 
   int largest = 0;
-  for (const auto& c : candidates) largest = std::max(largest, c.spot.area_px);
+  for (const auto& c : candidates) largest = std::max(largest, c.area_px);
   std::vector<DetectedSpot> spots;
-  for (const auto& c : candidates) {
-    if (c.spot.area_px < config.min_area_fraction * largest) {
-      ++local.rejected_fragment;
-    } else {
-      local.at_edge += c.spot.touches_edge;
-      spots.push_back(c.spot);
-    }
-  }
+  for (const auto& c : candidates)
+    if (c.area_px >= config.min_area_fraction * largest) spots.push_back(c);
   std::sort(spots.begin(), spots.end(),
             [](const DetectedSpot& a, const DetectedSpot& b) { return a.flux_dn > b.flux_dn; });
-  if (stats) *stats = local;
   return spots;
 }
 

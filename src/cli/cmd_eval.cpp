@@ -25,34 +25,37 @@ std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec) {
   return std::make_unique<SscnnEstimator>(path);
 }
 
-// Bounds for every `stride`-th record on `threads` threads.
+// Bounds for up to `max_samples` evenly spaced valid estimates, on `threads` threads.
 void computeBounds(std::vector<EvalRecord>& records, const SensorConfig& config, std::size_t max_samples, int threads) {
-  if (max_samples == 0 || records.empty()) return;
-  const std::size_t stride = std::max<std::size_t>(1, (records.size() + max_samples - 1) / max_samples);
+  std::vector<std::size_t> valid;
+  for (std::size_t i = 0; i < records.size(); ++i)
+    if (records[i].estimate.valid) valid.push_back(i);
+  if (max_samples == 0 || valid.empty()) return;
+  const std::size_t stride = std::max<std::size_t>(1, (valid.size() + max_samples - 1) / max_samples);
   std::vector<std::size_t> picked;
-  for (std::size_t i = 0; i < records.size(); i += stride) picked.push_back(i);
+  for (std::size_t i = 0; i < valid.size(); i += stride) picked.push_back(valid[i]);
   const CrlbCalculator crlb(config);
   Progress progress("eval: crlb", picked.size());
   std::atomic<std::size_t> next{0}, done{0};
-  auto work = [&] {
-    for (std::size_t k; (k = next++) < picked.size();) {
-      EvalRecord& r = records[picked[k]];
-      const Eigen::Matrix2d cov = crlb.covariance(r.alpha_true_rad, r.beta_true_rad);
-      r.crlb_alpha_rad2 = cov(0, 0);
-      r.crlb_beta_rad2 = cov(1, 1);
-      ++done;
-    }
-  };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < threads; ++t) pool.emplace_back(work);
-  // The calling thread works too and reports progress between items.
-  for (std::size_t k; (k = next++) < picked.size();) {
+  // Takes the next record; false when none is left.
+  auto computeNext = [&] {
+    const std::size_t k = next++;
+    if (k >= picked.size()) return false;
     EvalRecord& r = records[picked[k]];
     const Eigen::Matrix2d cov = crlb.covariance(r.alpha_true_rad, r.beta_true_rad);
     r.crlb_alpha_rad2 = cov(0, 0);
     r.crlb_beta_rad2 = cov(1, 1);
-    progress.update(++done);
-  }
+    ++done;
+    return true;
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t)
+    pool.emplace_back([&] {
+      while (computeNext()) {
+      }
+    });
+  // The calling thread works too and reports progress between items.
+  while (computeNext()) progress.update(done);
   for (auto& t : pool) t.join();
   progress.finish();
 }

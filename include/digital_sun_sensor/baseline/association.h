@@ -1,9 +1,10 @@
 // Spot-to-aperture association for single, multi-aperture and coded masks.
 // Every (bright spot, aperture) pairing is a hypothesis fixing the sun
-// direction; the hypothesis whose predicted spot pattern explains the most
-// detected spots (a missing spot where one should be visible counts against
-// it; so does a spot whose size disagrees with its aperture's diameter) wins
-// and is refined on all its matches. Spots cut by the detector edge are never
+// direction; the hypothesis whose predicted pattern explains the most
+// detections wins. A spot whose centre should be on the detector but is not
+// seen counts against it, weighted by how often that aperture is seen at all
+// (calibration); a detection of a rarely seen aperture counts less; spot size
+// must agree with aperture diameter. The winner is refined on all matches. Spots cut by the detector edge are never
 // used for the solution (biased centroids), but a hypothesis that explains
 // them scores higher: on a regular lattice they are what tells a shift of one
 // pitch apart.
@@ -23,8 +24,11 @@ struct AssociationOptions {
   double fov_alpha_rad = 0.08;   // hypotheses outside the field of view (plus margin) are dropped
   double fov_beta_rad = 0.08;
   int anchors = 3;  // brightest spots tried as anchors
-  double miss_weight = 0.5;
-  double edge_weight = 0.5;  // per edge-cut detection a predicted spot explains
+  // Per aperture: how often its spot is seen when its centre is on the
+  // detector (from calibration; empty: always). Under a high on-chip
+  // threshold a slightly dimmer aperture is rarely seen, so its absence is no
+  // evidence against a hypothesis, while a bright one's absence is.
+  std::vector<double> detection_probability;
   double size_weight = 4.0;  // per squared log-ratio of spot area vs aperture area
 
   // Gate, margins and field of view from the sensor design.

@@ -22,6 +22,9 @@ struct Calibration {
   MaskGeometry geometry;
   ResidualPolynomial polynomial;
   double centroid_sigma_px = 0.05;  // per axis, robust scatter of the fit residuals
+  // Per aperture: fraction of calibration images in which its spot was seen
+  // while its centre was on the detector (empty: not measured).
+  std::vector<double> detection_rate;
   std::string fit_yaml = "{}";      // fit statistics and provenance (a YAML map)
 
   // The design itself, before any fit.

@@ -42,17 +42,8 @@ struct DetectedSpot {
   bool touches_edge = false;  // cut by the detector edge: biased centroid, presence only
 };
 
-struct ExtractionStats {
-  int components = 0;
-  int rejected_small = 0;  // hot pixels, noise
-  int rejected_fragment = 0;
-  int at_edge = 0;       // kept, flagged touches_edge
-  int saturated_px = 0;  // pixels at the top code
-};
-
 // Accepted spots, brightest first; those cut by the detector edge are kept
 // and flagged. `image`: CV_8U or CV_16U, one channel.
-std::vector<DetectedSpot> extractSpots(const cv::Mat& image, const SpotExtractionConfig& config,
-                                       ExtractionStats* stats = nullptr);
+std::vector<DetectedSpot> extractSpots(const cv::Mat& image, const SpotExtractionConfig& config);
 
 }  // namespace dss
