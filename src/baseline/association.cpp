@@ -93,12 +93,9 @@ AssociationOptions AssociationOptions::forSensor(const SensorConfig& config, con
   // 10% beyond the field of view: the sun may stray past it and still be seen.
   o.fov_alpha_rad = std::min(1.5, 1.1 * config.fov.alpha_max_deg * kDeg + 0.5 * kDeg);
   o.fov_beta_rad = std::min(1.5, 1.1 * config.fov.beta_max_deg * kDeg + 0.5 * kDeg);
-  double max_diameter = 0.0, min_spacing = std::numeric_limits<double>::max();
-  for (int i = 0; i < geometry.numApertures(); ++i) {
-    max_diameter = std::max(max_diameter, geometry.aperture_diameters_um[i]);
-    for (int j = 0; j < i; ++j)
-      min_spacing = std::min(min_spacing, (geometry.apertures_um[i] - geometry.apertures_um[j]).norm());
-  }
+  double max_diameter = 0.0;
+  for (double d : geometry.aperture_diameters_um) max_diameter = std::max(max_diameter, d);
+  const double min_spacing = geometry.minApertureSpacingUm();
   // Spot radius: aperture plus the solar disk's blur.
   const double sun_blur_um = geometry.height_um * std::tan(0.5 * config.optics.sun.angular_diameter_deg * kDeg);
   o.edge_margin_px = (0.5 * max_diameter + sun_blur_um) / geometry.pitch_um + 3.0;

@@ -39,6 +39,28 @@ MaskGeometry apply(const MaskGeometry& base, const Eigen::VectorXd& p) {
   return g;
 }
 
+// The geometry field that parameter `index` moves.
+double& parameterRef(MaskGeometry& g, int index) {
+  switch (index) {
+    case kHeight:
+      return g.height_um;
+    case kOffsetX:
+      return g.offset_x_um;
+    case kOffsetY:
+      return g.offset_y_um;
+    case kRotation:
+      return g.rotation_rad;
+    case kTiltX:
+      return g.tilt_x_rad;
+    case kTiltY:
+      return g.tilt_y_rad;
+    default: {
+      Eigen::Vector2d& a = g.apertures_um[(index - kNumGlobals) / 2];
+      return (index - kNumGlobals) % 2 == 0 ? a.x() : a.y();
+    }
+  }
+}
+
 Eigen::VectorXd initialParameters(const MaskGeometry& g) {
   Eigen::VectorXd p = Eigen::VectorXd::Zero(kNumGlobals + 2 * g.numApertures());
   p[kHeight] = g.height_um;
@@ -101,7 +123,7 @@ class GeometryFit {
     for (; it < max_iterations; ++it) {
       Eigen::MatrixXd a = Eigen::MatrixXd::Zero(n, n);
       Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
-      const MaskGeometry g = apply(base_, p);
+      MaskGeometry g = apply(base_, p);  // probed in place for the Jacobian
       for (const auto& o : obs) {
         const Eigen::Vector3d& sun = samples_[o.sample].sun;
         const auto q = g.spotPx(o.spot.aperture, sun);
@@ -117,11 +139,13 @@ class GeometryFit {
             jac.col(k).setZero();
             continue;
           }
-          Eigen::VectorXd pp = p, pm = p;
-          pp[index[k]] += step;
-          pm[index[k]] -= step;
-          const auto qp = apply(base_, pp).spotPx(o.spot.aperture, sun);
-          const auto qm = apply(base_, pm).spotPx(o.spot.aperture, sun);
+          double& field = parameterRef(g, index[k]);
+          const double saved = field;
+          field = saved + step;
+          const auto qp = g.spotPx(o.spot.aperture, sun);
+          field = saved - step;
+          const auto qm = g.spotPx(o.spot.aperture, sun);
+          field = saved;
           jac.col(k) = qp && qm ? Eigen::Vector2d((*qp - *qm) / (2.0 * step)) : Eigen::Vector2d::Zero();
         }
         for (int u = 0; u < kNumGlobals + 2; ++u) {
@@ -232,10 +256,7 @@ CalibrationFitReport fitCalibration(const std::vector<CalibrationSample>& sample
   // Associate with the design (wide gate: as-built errors move spots by a few
   // um), fit, then re-associate with the fitted geometry and the normal gate.
   Eigen::VectorXd p = initialParameters(base);
-  double min_spacing_px = std::numeric_limits<double>::max();
-  for (int i = 0; i < n_ap; ++i)
-    for (int j = 0; j < i; ++j)
-      min_spacing_px = std::min(min_spacing_px, (base.apertures_um[i] - base.apertures_um[j]).norm() / base.pitch_um);
+  const double min_spacing_px = base.minApertureSpacingUm() / base.pitch_um;
   std::vector<Observation> obs = associateAll(base, samples, std::min(30.0, 0.4 * min_spacing_px));
   if (obs.size() < 3)
     throw CalibrationError("only " + std::to_string(obs.size()) +

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/sensor_instance.h"
@@ -25,6 +26,13 @@ MaskGeometry MaskGeometry::nominalOf(const SensorConfig& config) {
                                                                         : std::sqrt(a.width_um * a.height_um));
   }
   return g;
+}
+
+double MaskGeometry::minApertureSpacingUm() const {
+  double spacing = std::numeric_limits<double>::infinity();
+  for (int i = 0; i < numApertures(); ++i)
+    for (int j = 0; j < i; ++j) spacing = std::min(spacing, (apertures_um[i] - apertures_um[j]).norm());
+  return spacing;
 }
 
 Eigen::Vector3d MaskGeometry::apertureCentreUm(int i) const {

@@ -4,13 +4,13 @@
 #include <algorithm>
 #include <limits>
 
-#include "digital_sun_sensor/model/input_spec.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
 
 CentroidEstimator::CentroidEstimator(Calibration calibration)
     : calibration_(std::move(calibration)),
+      input_(inputSpecFor(calibration_.sensor)),
       association_(AssociationOptions::forSensor(calibration_.sensor, calibration_.geometry)) {
   association_.detection_probability = calibration_.detection_rate;
 }
@@ -25,7 +25,7 @@ std::vector<SunEstimate> CentroidEstimator::estimate(const std::vector<cv::Mat>&
 SunEstimate CentroidEstimator::estimateOne(const cv::Mat& image, std::vector<DetectedSpot>* spots_out) const {
   SunEstimate est;
   try {
-    inputSpecFor(calibration_.sensor).checkImage(image);
+    input_.checkImage(image);
   } catch (const std::invalid_argument& ex) {
     est.status = std::string("bad_image: ") + ex.what();
     return est;

@@ -26,8 +26,8 @@ int runCalibrate(int argc, char** argv) {
             });
   if (!args.parse(argc, argv, 2)) return 0;
   const DatasetBagReader reader(args.all("data"));
-  if (instancesFromBagInfo(reader) > 1)
-    throw std::runtime_error("the bag was rendered from " + std::to_string(instancesFromBagInfo(reader)) +
+  if (const int instances = instancesFromBagInfo(reader); instances > 1)
+    throw std::runtime_error("the bag was rendered from " + std::to_string(instances) +
                              " sensor instances; a calibration fits one sensor (generate with --instances 1)");
   std::optional<SensorConfig> config;
   if (args.has("sensor")) {

@@ -25,7 +25,7 @@ struct Calibration {
   // Per aperture: fraction of calibration images in which its spot was seen
   // while its centre was on the detector (empty: not measured).
   std::vector<double> detection_rate;
-  std::string fit_yaml = "{}";      // fit statistics and provenance (a YAML map)
+  std::string fit_yaml = "{}";  // fit statistics and provenance (a YAML map)
 
   // The design itself, before any fit.
   static Calibration nominalOf(const SensorConfig& config);

@@ -35,6 +35,8 @@ struct MaskGeometry {
   static MaskGeometry nominalOf(const SensorConfig& config);
 
   int numApertures() const { return static_cast<int>(apertures_um.size()); }
+  // Smallest distance between two aperture centres (infinity for one aperture).
+  double minApertureSpacingUm() const;
   // Aperture centre (exit face) in the sensor frame [um].
   Eigen::Vector3d apertureCentreUm(int i) const;
   // Spot centre of aperture i [px from the detector centre], or nullopt when

@@ -6,6 +6,7 @@
 #include "digital_sun_sensor/baseline/association.h"
 #include "digital_sun_sensor/baseline/calibration.h"
 #include "digital_sun_sensor/common/sun_estimate.h"
+#include "digital_sun_sensor/model/input_spec.h"
 
 namespace dss {
 
@@ -22,6 +23,7 @@ class CentroidEstimator : public SunEstimator {
 
  private:
   Calibration calibration_;
+  InputSpec input_;  // image size and encoding checks
   AssociationOptions association_;
 };
 
