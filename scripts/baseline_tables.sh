@@ -3,29 +3,35 @@
 # and with the anomaly mix, a calibration bag and a disjoint test bag of the
 # SAME simulated sensor (same seed, later sample offset), `dss calibrate`, then
 # `dss eval`. Plus the published protocol on thesis_sa (far_field optics, grid).
-#   scripts/baseline_tables.sh [OUT_DIR]   (default: .ws/baseline_tables)
+#   scripts/baseline_tables.sh [OUT_DIR [CASE...]]   (default: .ws/baseline_tables, all cases)
 # Bags already present are reused. Prints one markdown row per case and keeps
-# every JSON line in OUT_DIR/results.jsonl.
+# every JSON line in OUT_DIR/results.jsonl (appended).
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 WS="${DSS_WS:-$ROOT/.ws}"
 OUT="${1:-$WS/baseline_tables}"
+ONLY=("${@:2}")
 DSS="${DSS:-$WS/devel/lib/digital_sun_sensor/dss}"
 mkdir -p "$OUT"
 [ -x "$DSS" ] || { echo "dss not built: run scripts/setup.sh" >&2; exit 1; }
-: > "$OUT/results.jsonl"
 
 # case name, sensor, sampling, seed, calibration count, test count, extra args...
 run_case() {
   local name="$1" sensor="$2" sampling="$3" seed="$4" cal_count="$5" test_count="$6"
   shift 6
+  if [ ${#ONLY[@]} -gt 0 ] && [[ ! " ${ONLY[*]} " == *" $name "* ]]; then return; fi
   local cal="$OUT/$name.cal.bag" test="$OUT/$name.test.bag"
   [ -f "$cal" ] || "$DSS" generate --sensor "$ROOT/config/sensors/$sensor.yaml" --sampling "$sampling" \
     --count "$cal_count" --seed "$seed" --out "$cal" "$@"
   [ -f "$test" ] || "$DSS" generate --sensor "$ROOT/config/sensors/$sensor.yaml" --sampling "$sampling" \
     --count "$test_count" --seed "$seed" --offset "$cal_count" --out "$test" "$@"
   local fit eval
-  fit=$("$DSS" calibrate --data "$cal" --out "$OUT/$name.calib.yaml" 2>"$OUT/$name.calibrate.log")
+  if ! fit=$("$DSS" calibrate --data "$cal" --out "$OUT/$name.calib.yaml" 2>"$OUT/$name.calibrate.log"); then
+    # A sensor the centroid chain cannot calibrate gets a row saying why.
+    echo "| $name | calibration failed: $(tail -n 1 "$OUT/$name.calibrate.log" | sed 's/^dss calibrate: error: //') |||||"
+    echo "{\"case\": \"$name\", \"error\": \"$(tail -n 1 "$OUT/$name.calibrate.log")\"}" >> "$OUT/results.jsonl"
+    return
+  fi
   eval=$("$DSS" eval --data "$test" --estimator "centroid:$OUT/$name.calib.yaml" --csv "$OUT/$name.csv" \
     2>"$OUT/$name.eval.log")
   echo "{\"case\": \"$name\", \"calibrate\": $fit, \"eval\": $eval}" >> "$OUT/results.jsonl"

@@ -3,7 +3,7 @@
 #include <sstream>
 
 #include "commands.h"
-#include "dataset_source.h"
+#include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/baseline/calibration_fit.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "progress.h"

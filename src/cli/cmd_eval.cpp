@@ -5,7 +5,7 @@
 #include <thread>
 
 #include "commands.h"
-#include "dataset_source.h"
+#include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/baseline/centroid_estimator.h"
 #include "digital_sun_sensor/eval/crlb.h"
 #include "digital_sun_sensor/eval/evaluation.h"

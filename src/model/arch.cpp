@@ -15,6 +15,8 @@ void ArchSpec::validate() const {
     if (widths[i] < 1) fail("widths must be positive");
   }
   if (centroid_pool && centroid_width < 1) fail("centroid_width must be positive");
+  if (!(residual_scale > 0 && residual_scale <= 1)) fail("residual_scale must be in (0, 1]");
+  if (centroid_pool && (centroid_degree < 1 || centroid_degree > 5)) fail("centroid_degree must be in 1..5");
   for (int h : head_hidden)
     if (h < 1) fail("head_hidden sizes must be positive");
   if (num_classes < 1) fail("num_classes must be positive");

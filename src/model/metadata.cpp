@@ -71,6 +71,8 @@ std::string metadataToYaml(const ModelMetadata& m) {
   e << YAML::Key << "batch_norm" << YAML::Value << m.arch.batch_norm;
   e << YAML::Key << "centroid_pool" << YAML::Value << m.arch.centroid_pool;
   e << YAML::Key << "centroid_width" << YAML::Value << m.arch.centroid_width;
+  e << YAML::Key << "centroid_degree" << YAML::Value << m.arch.centroid_degree;
+  e << YAML::Key << "residual_scale" << YAML::Value << m.arch.residual_scale;
   e << YAML::Key << "head_hidden" << YAML::Value << YAML::Flow << m.arch.head_hidden;
   e << YAML::Key << "num_classes" << YAML::Value << m.arch.num_classes;
   e << YAML::EndMap;
@@ -114,6 +116,8 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   m.arch.batch_norm = get<bool>(a, "batch_norm", origin, "arch.");
   m.arch.centroid_pool = get<bool>(a, "centroid_pool", origin, "arch.");
   m.arch.centroid_width = get<int>(a, "centroid_width", origin, "arch.");
+  m.arch.centroid_degree = get<int>(a, "centroid_degree", origin, "arch.");
+  m.arch.residual_scale = get<double>(a, "residual_scale", origin, "arch.");
   m.arch.head_hidden = get<std::vector<int>>(a, "head_hidden", origin, "arch.");
   m.arch.num_classes = get<int>(a, "num_classes", origin, "arch.");
   try {

@@ -7,7 +7,9 @@
 #include <cstring>
 #include <sstream>
 
+#include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 
 namespace dss {
@@ -16,15 +18,6 @@ namespace {
 constexpr char kMagic[8] = {'D', 'S', 'S', 'M', 'O', 'D', 'E', 'L'};
 constexpr std::uint32_t kVersion = 1;
 constexpr std::size_t kHeaderBytes = 8 + 4 + 4 + 8 + 8;
-
-std::uint64_t fnv1a(const char* data, std::size_t n) {
-  std::uint64_t h = 0xcbf29ce484222325ULL;
-  for (std::size_t i = 0; i < n; ++i) {
-    h ^= static_cast<unsigned char>(data[i]);
-    h *= 0x100000001b3ULL;
-  }
-  return h;
-}
 
 template <typename T>
 void put(std::string& out, T value) {
@@ -40,11 +33,30 @@ T take(const std::string& in, std::size_t offset) {
 
 }  // namespace
 
+namespace {
+
+// d(angle / angle_scale) / d(normalized centroid) per axis of the nominal
+// sensor (pinhole + refraction), by central differences at normal incidence.
+std::pair<double, double> centroidSlopes(const SensorConfig& config, double angle_scale_rad) {
+  const MaskGeometry geometry = MaskGeometry::nominalOf(config);
+  const double step_rad = 0.5 * 3.14159265358979323846 / 180.0;
+  auto spot = [&](double alpha, double beta) { return geometry.spotPx(0, sunVectorFromAngles(alpha, beta)); };
+  const auto xp = spot(step_rad, 0), xm = spot(-step_rad, 0), yp = spot(0, step_rad), ym = spot(0, -step_rad);
+  if (!xp || !xm || !yp || !ym) return {0.0, 0.0};
+  const double dx = ((*xp).x() - (*xm).x()) * 2.0 / config.detector.width_px;
+  const double dy = ((*yp).y() - (*ym).y()) * 2.0 / config.detector.height_px;
+  return {2 * step_rad / angle_scale_rad / dx, 2 * step_rad / angle_scale_rad / dy};
+}
+
+}  // namespace
+
 Model createModel(const SensorConfig& config, const std::string& arch_name, std::uint64_t seed) {
   torch::manual_seed(seed);
   Model m;
   m.meta = metadataFor(config, archPreset(arch_name, config.numSubFovClasses()));
   m.net = std::make_shared<SscnnNetImpl>(m.meta.arch);
+  const auto [slope_x, slope_y] = centroidSlopes(config, m.meta.angle_scale_rad);
+  m.net->initCentroidMap(slope_x, slope_y);
   return m;
 }
 
@@ -63,7 +75,7 @@ std::string serializeModel(const Model& model) {
   put<std::uint64_t>(out, weights.size());
   out += meta;
   out += weights;
-  put<std::uint64_t>(out, fnv1a(out.data(), out.size()));
+  put<std::uint64_t>(out, fnv1a64(out.data(), out.size()));
   return out;
 }
 
@@ -92,7 +104,7 @@ Model deserializeModel(const std::string& bytes, const std::string& origin, cons
   if (meta_bytes > bytes.size() || weight_bytes > bytes.size() || expected_size != bytes.size())
     throw ModelError(origin + ": truncated or padded: " + std::to_string(bytes.size()) + " bytes, header says " +
                      std::to_string(expected_size));
-  if (fnv1a(bytes.data(), bytes.size() - 8) != take<std::uint64_t>(bytes, bytes.size() - 8))
+  if (fnv1a64(bytes.data(), bytes.size() - 8) != take<std::uint64_t>(bytes, bytes.size() - 8))
     throw ModelError(origin + ": checksum mismatch (the file is corrupt)");
 
   Model m;

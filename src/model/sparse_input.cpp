@@ -13,6 +13,16 @@ struct Pixel {
   int dn;
 };
 
+// Keeps the brightest spec.max_sites pixels (ties by position, deterministic), in row-major order.
+void limitSites(std::vector<Pixel>& pixels, const InputSpec& spec) {
+  if (static_cast<int>(pixels.size()) <= spec.max_sites) return;
+  std::nth_element(pixels.begin(), pixels.begin() + spec.max_sites, pixels.end(), [](const Pixel& a, const Pixel& b) {
+    return a.dn != b.dn ? a.dn > b.dn : (a.y != b.y ? a.y < b.y : a.x < b.x);
+  });
+  pixels.resize(static_cast<std::size_t>(spec.max_sites));
+  std::sort(pixels.begin(), pixels.end(), [](const Pixel& a, const Pixel& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });
+}
+
 std::vector<Pixel> activePixels(const cv::Mat& image, const InputSpec& spec) {
   std::vector<Pixel> pixels;
   for (int y = 0; y < image.rows; ++y) {
@@ -26,44 +36,71 @@ std::vector<Pixel> activePixels(const cv::Mat& image, const InputSpec& spec) {
         if (row[x] > spec.threshold_dn) pixels.push_back({y, x, row[x]});
     }
   }
-  if (static_cast<int>(pixels.size()) > spec.max_sites) {
-    // Keep the brightest (ties by position, deterministic), back in row-major order.
-    std::nth_element(pixels.begin(), pixels.begin() + spec.max_sites, pixels.end(), [](const Pixel& a, const Pixel& b) {
-      return a.dn != b.dn ? a.dn > b.dn : (a.y != b.y ? a.y < b.y : a.x < b.x);
-    });
-    pixels.resize(static_cast<std::size_t>(spec.max_sites));
-    std::sort(pixels.begin(), pixels.end(),
-              [](const Pixel& a, const Pixel& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });
-  }
+  limitSites(pixels, spec);
   return pixels;
 }
+
+// Accumulates the sites and features (value, x, y) of a batch, image by image.
+class BatchEncoder {
+ public:
+  explicit BatchEncoder(const InputSpec& spec)
+      : spec_(spec),
+        value_scale_(1.0 / std::max(1.0, spec.max_code - spec.black_level_dn)),
+        cx_(0.5 * (spec.width_px - 1)),
+        cy_(0.5 * (spec.height_px - 1)) {}
+
+  void addImage(const std::vector<Pixel>& pixels) {
+    for (const Pixel& p : pixels) {
+      sites_.push_back({images_, p.y, p.x});
+      features_.push_back(static_cast<float>((p.dn - spec_.black_level_dn) * value_scale_));
+      features_.push_back(static_cast<float>((p.x - cx_) * 2.0 / spec_.width_px));
+      features_.push_back(static_cast<float>((p.y - cy_) * 2.0 / spec_.height_px));
+    }
+    ++images_;
+  }
+
+  sparse::SparseTensor finish(torch::Dtype dtype) {
+    const auto n = static_cast<std::int64_t>(sites_.size());
+    auto tensor = torch::from_blob(features_.data(), {n, 3}, torch::kFloat).to(dtype).clone();
+    auto site_set = std::make_shared<sparse::SiteSet>(images_, spec_.height_px, spec_.width_px, std::move(sites_));
+    return {tensor, site_set, std::make_shared<sparse::RulebookCache>()};
+  }
+
+ private:
+  const InputSpec& spec_;
+  double value_scale_, cx_, cy_;
+  std::int32_t images_ = 0;
+  std::vector<sparse::Site> sites_;
+  std::vector<float> features_;
+};
 
 }  // namespace
 
 sparse::SparseTensor encodeImages(const std::vector<cv::Mat>& images, const InputSpec& spec, torch::Dtype dtype) {
-  std::vector<sparse::Site> sites;
-  std::vector<float> features;
-  const double value_scale = 1.0 / std::max(1.0, spec.max_code - spec.black_level_dn);
-  const double cx = 0.5 * (spec.width_px - 1), cy = 0.5 * (spec.height_px - 1);
-  const double coord_scale_x = 2.0 / spec.width_px, coord_scale_y = 2.0 / spec.height_px;
+  BatchEncoder encoder(spec);
   for (std::size_t b = 0; b < images.size(); ++b) {
     try {
       spec.checkImage(images[b]);
     } catch (const std::invalid_argument& e) {
       throw std::invalid_argument("image " + std::to_string(b) + " of the batch: " + e.what());
     }
-    for (const Pixel& p : activePixels(images[b], spec)) {
-      sites.push_back({static_cast<std::int32_t>(b), p.y, p.x});
-      features.push_back(static_cast<float>((p.dn - spec.black_level_dn) * value_scale));
-      features.push_back(static_cast<float>((p.x - cx) * coord_scale_x));
-      features.push_back(static_cast<float>((p.y - cy) * coord_scale_y));
-    }
+    encoder.addImage(activePixels(images[b], spec));
   }
-  const auto n = static_cast<std::int64_t>(sites.size());
-  auto tensor = torch::from_blob(features.data(), {n, 3}, torch::kFloat).to(dtype).clone();
-  auto site_set = std::make_shared<sparse::SiteSet>(static_cast<int>(images.size()), spec.height_px, spec.width_px,
-                                                    std::move(sites));
-  return {tensor, site_set, std::make_shared<sparse::RulebookCache>()};
+  return encoder.finish(dtype);
+}
+
+sparse::SparseTensor encodeSamples(const std::vector<const SparseSample*>& samples, const InputSpec& spec) {
+  BatchEncoder encoder(spec);
+  std::vector<Pixel> pixels;
+  for (const SparseSample* s : samples) {
+    pixels.clear();
+    for (std::size_t i = 0; i < s->pixels.size(); ++i)
+      if (s->dn[i] > spec.threshold_dn)
+        pixels.push_back({static_cast<int>(s->pixels[i] >> 16), static_cast<int>(s->pixels[i] & 0xFFFF), s->dn[i]});
+    limitSites(pixels, spec);
+    encoder.addImage(pixels);
+  }
+  return encoder.finish(torch::kFloat);
 }
 
 torch::Tensor encodeImagesDense(const std::vector<cv::Mat>& images, const InputSpec& spec) {

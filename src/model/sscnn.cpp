@@ -113,20 +113,40 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   int features = 2 * channels;  // average + max pooled
   if (arch.centroid_pool) {
     centroid_conv1_ = register_module(
-        "centroid_conv1", std::make_shared<SparseConvImpl>(arch.input_channels, arch.centroid_width, 3, 1, true));
+        "centroid_conv1", std::make_shared<SparseConvImpl>(1, arch.centroid_width, 3, 1, true));
     centroid_conv2_ =
         register_module("centroid_conv2", std::make_shared<SparseConvImpl>(arch.centroid_width, 1, 1, 1, true));
-    centroid_skip_ = register_module("centroid_skip", torch::nn::Linear(2, 2));
+    const int monomials = (arch.centroid_degree + 1) * (arch.centroid_degree + 2) / 2 - 1;
+    centroid_skip_ = register_module("centroid_skip", torch::nn::Linear(monomials, 2));
+    centroid_prior_ = register_buffer("centroid_prior", torch::zeros({2}));
     features += 2;
   }
+  head_norm_ = register_module("head_norm", torch::nn::LayerNorm(torch::nn::LayerNormOptions({2 * channels})));
   for (std::size_t i = 0; i < arch.head_hidden.size(); ++i) {
     mlp_.push_back(register_module("mlp" + std::to_string(i + 1), torch::nn::Linear(features, arch.head_hidden[i])));
     features = arch.head_hidden[i];
   }
-  output_ = register_module("output", torch::nn::Linear(features, 4 + arch.num_classes));
+  output_ = register_module("output", torch::nn::Linear(features, 4));
+  // The classes get their own branch: in a shared MLP the angle NLL's gradients,
+  // which grow as the variance shrinks, drown the cross-entropy's.
+  const int head_in = 2 * channels + (arch.centroid_pool ? 2 : 0), class_hidden = arch.head_hidden.back();
+  class_hidden_ = register_module("class_hidden", torch::nn::Linear(head_in, class_hidden));
+  class_output_ = register_module("class_output", torch::nn::Linear(class_hidden, arch.num_classes));
   torch::NoGradGuard no_grad;
-  output_->weight.mul_(0.1);  // start near zero angles, unit variance, uniform classes
+  output_->weight.mul_(0.1);  // start near unit variance...
   output_->bias.zero_();
+  output_->weight.slice(0, 0, 2).zero_();  // ...and angle corrections of zero
+}
+
+void SscnnNetImpl::initCentroidMap(double slope_x, double slope_y) {
+  if (!arch_.centroid_pool) return;
+  torch::NoGradGuard no_grad;
+  centroid_conv2_->weight.zero_();  // softplus(0): equal weights
+  centroid_conv2_->bias.zero_();
+  centroid_skip_->weight.zero_();
+  centroid_skip_->bias.zero_();
+  centroid_prior_[0] = slope_x;
+  centroid_prior_[1] = slope_y;
 }
 
 std::int64_t SscnnNetImpl::parameterCount() const {
@@ -135,15 +155,31 @@ std::int64_t SscnnNetImpl::parameterCount() const {
   return n;
 }
 
+// x^i y^j for 1 <= i + j <= degree: a polynomial map from the spot centroid to
+// the angles absorbs the pinhole's atan and smooth distortions, which an MLP
+// would have to learn to 1e-4 of the field of view.
+torch::Tensor SscnnNetImpl::monomials(const torch::Tensor& centroid) const {
+  const auto x = centroid.slice(1, 0, 1), y = centroid.slice(1, 1, 2);
+  std::vector<torch::Tensor> terms;
+  for (int degree = 1; degree <= arch_.centroid_degree; ++degree)
+    for (int j = 0; j <= degree; ++j) terms.push_back(x.pow(degree - j) * y.pow(j));
+  return torch::cat(terms, 1);
+}
+
 SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const torch::Tensor& centroid) {
-  torch::Tensor h = centroid.defined() ? torch::cat({pooled, centroid}, 1) : pooled;
+  // Pooled features of a network without batch norm grow with depth and
+  // brightness; normalized, the MLP starts in its working range.
+  const torch::Tensor normed = head_norm_->forward(pooled);
+  torch::Tensor h = centroid.defined() ? torch::cat({normed, centroid}, 1) : normed;
+  SscnnOutput result;
+  result.class_logits = class_output_->forward(torch::silu(class_hidden_->forward(h)));
   for (auto& layer : mlp_) h = torch::silu(layer->forward(h));
   const torch::Tensor out = output_->forward(h);
-  SscnnOutput result;
-  result.angles = out.slice(1, 0, 2);
-  if (centroid.defined()) result.angles = result.angles + centroid_skip_->forward(centroid);
+  result.angles = arch_.residual_scale * out.slice(1, 0, 2);
+  if (centroid.defined())
+    result.angles = result.angles + centroid * centroid_prior_ +
+                    arch_.residual_scale * centroid_skip_->forward(monomials(centroid));
   result.log_variance = out.slice(1, 2, 4);
-  result.class_logits = out.slice(1, 4);
   return result;
 }
 
@@ -159,8 +195,10 @@ SscnnOutput SscnnNetImpl::forward(const SparseTensor& input) {
       torch::cat({sparse::globalAvgPool(x.features, *x.sites), sparse::globalMaxPool(x.features, *x.sites)}, 1);
   torch::Tensor centroid;
   if (arch_.centroid_pool) {
-    // Learned weights w >= 0 per input site; centroid = sum(w xy) / sum(w) per image.
-    SparseTensor c = centroid_conv1_->forward(input);
+    // Learned weights w >= 0 per input site from the local pixel values only
+    // (translation-equivariant: no position-dependent bias); centroid =
+    // sum(w xy) / sum(w) per image.
+    SparseTensor c = centroid_conv1_->forward(input.with(input.features.slice(1, 0, 1).contiguous()));
     c = centroid_conv2_->forward(c.with(torch::relu(c.features)));
     const torch::Tensor w = torch::softplus(c.features);
     const torch::Tensor index = sparse::batchIndex(*input.sites);
@@ -179,7 +217,7 @@ SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
   const torch::Tensor pooled = torch::cat({x.mean({2, 3}), x.amax({2, 3})}, 1);
   torch::Tensor centroid;
   if (arch_.centroid_pool) {
-    auto c = centroid_conv2_->forwardDense(torch::relu(centroid_conv1_->forwardDense(input)));
+    auto c = centroid_conv2_->forwardDense(torch::relu(centroid_conv1_->forwardDense(input.slice(1, 0, 1))));
     auto w = torch::softplus(c);
     centroid = (w * input.slice(1, 1, 3)).sum({2, 3}) / (w.sum({2, 3}) + 1e-6);
   }

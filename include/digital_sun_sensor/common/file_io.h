@@ -2,6 +2,8 @@
 // complete new content: temp file in the same directory, fsync, rename).
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
 #include <string>
 
 namespace dss {
@@ -11,5 +13,8 @@ void writeFileAtomic(const std::string& path, const std::string& bytes);
 
 // Whole file; throws std::runtime_error naming the path when unreadable.
 std::string readFile(const std::string& path);
+
+// 64-bit FNV-1a: the checksum of model and checkpoint files.
+std::uint64_t fnv1a64(const char* data, std::size_t n);
 
 }  // namespace dss

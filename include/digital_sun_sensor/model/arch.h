@@ -18,6 +18,12 @@ struct ArchSpec {
   bool batch_norm = false;    // the published network has none
   bool centroid_pool = true;  // learned intensity-weighted centroid of the input sites
   int centroid_width = 16;    // channels of its weighting branch
+  int centroid_degree = 3;    // the angles get a learned polynomial of the centroid (degree 1..this)
+  // Learned angle terms are multiplied by this (normalized units): on top of the
+  // physics prior they are corrections, and Adam's per-step change of a weight
+  // is about the learning rate whatever the gradient's size, so their scale
+  // sets the finest step the optimizer takes on the angles.
+  double residual_scale = 0.02;
   std::vector<int> head_hidden{256, 256};
   int num_classes = 4;  // sub-FOV classes of the sensor
 

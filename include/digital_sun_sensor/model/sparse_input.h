@@ -5,6 +5,7 @@
 
 #include "digital_sun_sensor/model/input_spec.h"
 #include "digital_sun_sensor/sparse/sparse_tensor.h"
+#include "digital_sun_sensor/train/training_set.h"
 
 namespace dss {
 
@@ -14,6 +15,9 @@ namespace dss {
 // the image and the problem when an image disagrees with the spec.
 sparse::SparseTensor encodeImages(const std::vector<cv::Mat>& images, const InputSpec& spec,
                                   torch::Dtype dtype = torch::kFloat);
+
+// The same encoding of samples whose pixels were extracted already (training).
+sparse::SparseTensor encodeSamples(const std::vector<const SparseSample*>& samples, const InputSpec& spec);
 
 // Dense [batch, 3, H, W] equivalent of encodeImages (zeros at inactive pixels).
 torch::Tensor encodeImagesDense(const std::vector<cv::Mat>& images, const InputSpec& spec);

@@ -8,6 +8,7 @@
 #include <torch/nn/module.h>
 #include <torch/nn/modules/batchnorm.h>
 #include <torch/nn/modules/linear.h>
+#include <torch/nn/modules/normalization.h>
 
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/sparse/sparse_tensor.h"
@@ -58,15 +59,22 @@ class SscnnNetImpl : public torch::nn::Module {
   // [B, 3, H, W] image), for the sparse-vs-dense benchmark.
   SscnnOutput forwardDense(const torch::Tensor& input);
   const ArchSpec& arch() const { return arch_; }
+  // Physics prior at initialisation: the centroid starts as the plain centre of
+  // the active sites and maps linearly to the angles with these slopes
+  // (normalized units), so training starts at a pinhole-model estimate.
+  void initCentroidMap(double slope_x, double slope_y);
   std::int64_t parameterCount() const;
 
  private:
   SscnnOutput head(const torch::Tensor& pooled, const torch::Tensor& centroid);
+  torch::Tensor monomials(const torch::Tensor& centroid) const;
   ArchSpec arch_;
   std::shared_ptr<SparseConvImpl> stem_, centroid_conv1_, centroid_conv2_;
   std::vector<std::shared_ptr<ResidualBlockImpl>> blocks_;
+  torch::nn::LayerNorm head_norm_{nullptr};
   std::vector<torch::nn::Linear> mlp_;
-  torch::nn::Linear output_{nullptr}, centroid_skip_{nullptr};
+  torch::nn::Linear output_{nullptr}, centroid_skip_{nullptr}, class_hidden_{nullptr}, class_output_{nullptr};
+  torch::Tensor centroid_prior_;  // buffer: angle per unit centroid, per axis
 };
 
 }  // namespace dss

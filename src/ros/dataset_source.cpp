@@ -1,11 +1,12 @@
-#include "dataset_source.h"
+#include "digital_sun_sensor/ros/dataset_source.h"
 
 #include <yaml-cpp/yaml.h>
 
 #include <sstream>
+#include <algorithm>
 #include <stdexcept>
 
-namespace dss::cli {
+namespace dss {
 
 std::optional<SensorConfig> sensorFromBagInfo(const DatasetBagReader& reader) {
   if (!reader.infoYaml()) return std::nullopt;
@@ -51,4 +52,39 @@ std::string describe(const BagReadStats& stats) {
   return os.str();
 }
 
-}  // namespace dss::cli
+TrainingData loadTrainingData(const std::vector<std::string>& bags, const std::optional<SensorConfig>& sensor,
+                              const DatasetTopics& topics, std::uint64_t max_images,
+                              const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
+  const DatasetBagReader reader(bags, topics);
+  std::optional<SensorConfig> config = sensor ? sensor : sensorFromBagInfo(reader);
+  if (!config)
+    throw std::runtime_error("'" + bags.front() +
+                             "' records no sensor config (no dataset_info): name the sensor config explicitly");
+  TrainingData data;
+  data.sensor = *config;
+  data.samples = TrainingSet(inputSpecFor(data.sensor));
+  const std::uint64_t total = max_images ? std::min(max_images, reader.imageMessages()) : reader.imageMessages();
+  data.stats = reader.forEach([&](const LabelledImage& item) {
+    try {
+      checkImageFitsSensor(item, data.sensor);
+      data.samples.add(item.image, item.truth.alpha, item.truth.beta, item.truth.subfov_class);
+    } catch (const std::exception& e) {
+      if (data.wrong_size_images++ == 0) data.first_wrong_size = e.what();
+    }
+    if (progress) progress(item.index + 1, total);
+    return max_images == 0 || item.index + 1 < max_images;
+  });
+  if (data.samples.size() == 0)
+    throw std::runtime_error("no usable image/truth pairs in the data: " + describe(data));
+  return data;
+}
+
+std::string describe(const TrainingData& data) {
+  std::string text = describe(data.stats);
+  if (data.wrong_size_images)
+    text += "; " + std::to_string(data.wrong_size_images) + " images that do not fit the sensor skipped (first: " +
+            data.first_wrong_size + ")";
+  return text;
+}
+
+}  // namespace dss

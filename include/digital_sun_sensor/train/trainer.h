@@ -1,0 +1,115 @@
+// The training core behind `dss train` and trainer_node: fits an SSCNN to a
+// TrainingSet with a seeded, fully reproducible schedule, validates every
+// epoch, keeps the best weights (early stopping), and checkpoints so that a
+// resumed run continues exactly where it stopped (weights, optimizer state,
+// epoch, position in the epoch's data order). Torch-free interface.
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <stdexcept>
+#include <string>
+
+#include "digital_sun_sensor/sim/sensor_config.h"
+#include "digital_sun_sensor/train/training_set.h"
+
+namespace dss {
+
+// A checkpoint that cannot be resumed; the message names the file and why.
+class CheckpointError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct TrainOptions {
+  std::string arch;                 // architecture preset (empty: defaultArchName())
+  int batch_size = 64;
+  int epochs = 20;                  // the learning-rate schedule spans this many epochs
+  int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
+  double learning_rate = 2e-3;      // peak, after a linear warm-up
+  double warmup_fraction = 0.03;    // of all steps
+  double final_lr_fraction = 0.01;  // cosine decay ends at this fraction of the peak
+  double weight_decay = 0.0;        // AdamW decoupled decay
+  double class_loss_weight = 0.1;   // sub-FOV cross-entropy beside the angle NLL
+  std::uint64_t seed = 1;           // weights, data order, augmentation
+  double max_minutes = 0.0;         // stop (with a checkpoint) after this wall time (0: no limit)
+  std::string checkpoint_path;      // empty: no checkpoints
+  double checkpoint_interval_s = 300.0;
+  double progress_interval_s = 2.0;  // 0: after every step
+  std::size_t validation_max = 4000;  // validate on at most this many samples (evenly spaced)
+  AugmentationConfig augmentation;
+  int aten_threads = 1;
+  int blas_threads = 2;
+
+  // Throws std::invalid_argument naming the bad option.
+  void validate() const;
+};
+
+struct TrainProgress {
+  int epoch = 0;  // 0-based
+  int epochs = 0;
+  std::int64_t step_in_epoch = 0;
+  std::int64_t steps_per_epoch = 0;
+  double loss = 0.0;           // running mean over the last steps
+  double learning_rate = 0.0;
+  double images_per_s = 0.0;
+  double elapsed_s = 0.0;  // training wall time, including earlier runs of a resumed job
+  double eta_s = 0.0;
+  bool epoch_end = false;  // validation figures below are fresh
+  double val_alpha_mean_deg = 0.0, val_beta_mean_deg = 0.0;
+  double val_alpha_max_deg = 0.0, val_beta_max_deg = 0.0;
+  double val_class_accuracy = 0.0;
+  double best_val_mean_deg = 0.0;
+  int best_epoch = -1;
+};
+
+// One human-readable line: epoch, step, loss, validation error, images/s, ETA.
+std::string formatProgress(const TrainProgress& progress);
+
+enum class TrainStop { finished, early_stopped, time_limit, interrupted };
+const char* toString(TrainStop stop);
+
+struct TrainResult {
+  TrainStop stop = TrainStop::finished;
+  TrainProgress last;  // figures of the last validation
+  double wall_s = 0.0;
+};
+
+class Trainer {
+ public:
+  // Validation may be empty (then the last weights are kept, no early stop).
+  Trainer(const SensorConfig& sensor, TrainingSet train, TrainingSet validation, TrainOptions options);
+  ~Trainer();
+  Trainer(const Trainer&) = delete;
+  Trainer& operator=(const Trainer&) = delete;
+
+  // Restores weights, optimizer state and position. Throws CheckpointError
+  // when the file is unreadable or was made for another sensor, architecture,
+  // data set or options.
+  void resume(const std::string& checkpoint_path);
+
+  // Trains until the schedule ends, early stopping, the time limit or `stop`
+  // becomes true; checkpoints on the way and on every exit. `on_progress` is
+  // called every few seconds and at each epoch end.
+  TrainResult run(const std::function<void(const TrainProgress&)>& on_progress, const std::atomic<bool>& stop);
+
+  // The best validated (else the latest) weights as a model file (atomic),
+  // with training summary and validation metrics in its metadata.
+  void saveModel(const std::string& path, const std::string& data_description) const;
+  void saveCheckpoint(const std::string& path) const;
+
+  // Validation figures of the current weights (the val_* fields), without
+  // touching the best-model bookkeeping.
+  TrainProgress measureValidation();
+
+  std::int64_t stepsPerEpoch() const;
+  // Every weight as one flat vector (tests compare runs).
+  std::vector<float> flatWeights() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace dss

@@ -1,0 +1,131 @@
+// dss train: the training core (src/train) on dataset bags, without a ROS master.
+#include <atomic>
+#include <csignal>
+#include <iostream>
+#include <optional>
+#include <sstream>
+
+#include "commands.h"
+#include "digital_sun_sensor/model/arch.h"
+#include "digital_sun_sensor/ros/dataset_source.h"
+#include "digital_sun_sensor/train/trainer.h"
+#include "progress.h"
+
+namespace dss::cli {
+namespace {
+
+std::atomic<bool> g_stop{false};
+extern "C" void onStopSignal(int) { g_stop = true; }
+
+}  // namespace
+
+int runTrain(int argc, char** argv) {
+  const TrainOptions defaults;
+  auto num = [](double v) {
+    std::ostringstream os;
+    os << v;
+    return os.str();
+  };
+  Args args(
+      "dss train",
+      "Trains an SSCNN on labelled dataset bags (same core as trainer_node). Progress on stderr; checkpoints every "
+      "--checkpoint-minutes and on SIGINT/SIGTERM; --resume continues exactly where a checkpoint stopped. The model "
+      "(best validated weights) is written atomically to --out; one JSON line summarises the run.",
+      {
+          {"data", "BAG", "dataset bag(s) of /sun_sensor/image + /sun_sensor/truth", "", true, true},
+          {"out", "MODEL", "model file to write", "", true, false},
+          {"sensor", "CFG", "sensor config (default: the one recorded in the first bag)", "", false, false},
+          {"arch", "A", "architecture (resnet34, resnet18, resnet18_w32, resnet10_w16)", defaultArchName(), false,
+           false},
+          {"resume", "CKPT", "continue from this checkpoint", "", false, false},
+          {"checkpoint", "CKPT", "checkpoint file (default: MODEL.ckpt, or the --resume file)", "", false, false},
+          {"checkpoint-minutes", "M", "minutes between checkpoints", num(defaults.checkpoint_interval_s / 60), false,
+           false},
+          {"epochs", "N", "epochs of the learning-rate schedule", std::to_string(defaults.epochs), false, false},
+          {"batch", "B", "images per step", std::to_string(defaults.batch_size), false, false},
+          {"lr", "LR", "peak learning rate (AdamW)", num(defaults.learning_rate), false, false},
+          {"weight-decay", "W", "AdamW decoupled weight decay", num(defaults.weight_decay), false, false},
+          {"patience", "N", "stop after N epochs without validation improvement (0: never)",
+           std::to_string(defaults.patience_epochs), false, false},
+          {"val-fraction", "F", "fraction of the images held out for validation", "0.1", false, false},
+          {"seed", "S", "seed of weights, split, data order and augmentation", std::to_string(defaults.seed), false,
+           false},
+          {"max-minutes", "M", "stop with a checkpoint after M minutes of training (0: no limit)", "0", false, false},
+          {"max-images", "N", "read at most N images (0: all)", "0", false, false},
+          {"augment", "KEY=V", "augmentation rate, e.g. noise_probability=0.3 (repeatable; see README)", "", false,
+           true},
+          {"aten-threads", "N", "ATen (OpenMP) threads", std::to_string(defaults.aten_threads), false, false},
+          {"blas-threads", "N", "OpenBLAS threads", std::to_string(defaults.blas_threads), false, false},
+      });
+  if (!args.parse(argc, argv, 2)) return 0;
+
+  TrainOptions options;
+  options.arch = args.get("arch");
+  options.epochs = static_cast<int>(args.getInt("epochs"));
+  options.batch_size = static_cast<int>(args.getInt("batch"));
+  options.learning_rate = args.getDouble("lr");
+  options.weight_decay = args.getDouble("weight-decay");
+  options.patience_epochs = static_cast<int>(args.getInt("patience"));
+  options.seed = static_cast<std::uint64_t>(args.getInt("seed"));
+  options.max_minutes = args.getDouble("max-minutes");
+  options.checkpoint_interval_s = 60.0 * args.getDouble("checkpoint-minutes");
+  options.aten_threads = static_cast<int>(args.getInt("aten-threads"));
+  options.blas_threads = static_cast<int>(args.getInt("blas-threads"));
+  for (const auto& a : args.all("augment")) setAugmentation(options.augmentation, a);
+  options.checkpoint_path =
+      args.has("checkpoint") ? args.get("checkpoint") : args.has("resume") ? args.get("resume") : args.get("out") + ".ckpt";
+  const double val_fraction = args.getDouble("val-fraction");
+  if (!(val_fraction >= 0 && val_fraction < 1)) throw UsageError("dss train: --val-fraction must be in [0, 1)");
+  options.validate();
+
+  std::optional<SensorConfig> sensor;
+  if (args.has("sensor")) sensor = loadSensorFromArgs(args);
+  const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
+  std::unique_ptr<Progress> reading;
+  TrainingData data = loadTrainingData(args.all("data"), sensor, {}, max_images, [&](std::uint64_t done, std::uint64_t total) {
+    if (!reading) reading = std::make_unique<Progress>("train: reading bags", total);
+    reading->update(done);
+  });
+  if (reading) reading->finish();
+  std::cerr << "read " << describe(data) << "; " << data.samples.memoryBytes() / (1 << 20) << " MiB in memory\n";
+  TrainingSet train{data.samples.spec()}, validation{data.samples.spec()};
+  data.samples.split(val_fraction, options.seed, train, validation);
+  std::cerr << "sensor " << data.sensor.name << ": " << train.size() << " training, " << validation.size()
+            << " validation images\n";
+
+  Trainer trainer(data.sensor, std::move(train), std::move(validation), options);
+  if (args.has("resume")) {
+    trainer.resume(args.get("resume"));
+    std::cerr << "resumed from " << args.get("resume") << "\n";
+  }
+  std::signal(SIGINT, onStopSignal);
+  std::signal(SIGTERM, onStopSignal);
+  const TrainResult result = trainer.run([](const TrainProgress& p) { std::cerr << formatProgress(p) << std::endl; },
+                                         g_stop);
+  std::signal(SIGINT, SIG_DFL);
+  std::signal(SIGTERM, SIG_DFL);
+
+  std::string description;
+  for (const auto& bag : args.all("data")) description += (description.empty() ? "" : " ") + bag;
+  const bool complete = result.stop == TrainStop::finished || result.stop == TrainStop::early_stopped;
+  if (complete) {
+    trainer.saveModel(args.get("out"), description);
+    std::cerr << "wrote " << args.get("out") << "\n";
+  } else {
+    std::cerr << "stopped (" << toString(result.stop) << "); checkpoint " << options.checkpoint_path
+              << "; continue with: dss train ... --resume " << options.checkpoint_path << "\n";
+  }
+  const auto& p = result.last;
+  std::cout << "{\"command\":\"train\",\"sensor\":\"" << data.sensor.name << "\",\"arch\":\"" << options.arch
+            << "\",\"stop\":\"" << toString(result.stop) << "\",\"model\":" << (complete ? "\"" + args.get("out") + "\"" : "null")
+            << ",\"checkpoint\":\"" << options.checkpoint_path << "\",\"epochs_completed\":"
+            << p.epoch + (p.epoch_end ? 1 : 0) << ",\"wall_s\":" << result.wall_s
+            << ",\"images_per_s\":" << p.images_per_s << ",\"val_alpha_mean_deg\":" << p.val_alpha_mean_deg
+            << ",\"val_beta_mean_deg\":" << p.val_beta_mean_deg << ",\"val_alpha_max_deg\":" << p.val_alpha_max_deg
+            << ",\"val_beta_max_deg\":" << p.val_beta_max_deg << ",\"val_class_accuracy\":" << p.val_class_accuracy
+            << ",\"best_val_mean_deg\":" << p.best_val_mean_deg << ",\"best_epoch\":" << p.best_epoch + 1 << "}"
+            << std::endl;
+  return complete ? 0 : 3;
+}
+
+}  // namespace dss::cli

@@ -1,0 +1,189 @@
+// Training core: a tiny model learns from a tiny simulated set; an interrupted
+// and resumed run reaches the same weights as an uninterrupted one; bad
+// checkpoints and options are rejected; augmentation is seeded.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <fstream>
+
+#include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/train/trainer.h"
+
+namespace dss {
+namespace {
+
+SensorConfig tinySensor() {
+  // Coarse PSF nodes: rendering speed matters more here than the last 0.01 px.
+  return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml",
+                          {"optics.psf_node_step_deg=3"});
+}
+
+TrainingSet simulate(const SensorConfig& sensor, std::uint64_t count, std::uint64_t seed) {
+  TrainingSet set(inputSpecFor(sensor));
+  DatasetSpec spec;
+  spec.count = count;
+  spec.seed = seed;
+  DatasetGenerator(sensor, spec).run([&](const DatasetItem& item) {
+    set.add(item.image, item.truth.alpha_rad, item.truth.beta_rad, item.truth.subfov_class);
+  });
+  return set;
+}
+
+const TrainingSet& tinySet() {
+  static const TrainingSet set = simulate(tinySensor(), 480, 17);
+  return set;
+}
+
+TrainOptions tinyOptions() {
+  TrainOptions o;
+  o.arch = "resnet10_w16";
+  o.batch_size = 16;
+  o.epochs = 6;
+  o.learning_rate = 3e-3;
+  o.seed = 3;
+  o.progress_interval_s = 0;  // a callback after every step
+  o.augmentation.noise_probability = 0.3;  // exercises the seeded augmentation in resume
+  o.augmentation.noise_sigma_dn = 2.0;
+  return o;
+}
+
+std::string tempPath(const std::string& name) {
+  return (::testing::TempDir().empty() ? "/tmp/" : ::testing::TempDir()) + "dss_train_" + name;
+}
+
+TEST(Train, ValidationErrorFallsWellBelowUntrained) {
+  TrainingSet train{tinySet().spec()}, validation{tinySet().spec()};
+  tinySet().split(0.2, 1, train, validation);
+  ASSERT_EQ(validation.size(), 96u);
+  Trainer trainer(tinySensor(), train, validation, tinyOptions());
+  const TrainProgress untrained = trainer.measureValidation();
+  const double untrained_deg = 0.5 * (untrained.val_alpha_mean_deg + untrained.val_beta_mean_deg);
+  std::atomic<bool> stop{false};
+  int epoch_reports = 0;
+  const TrainResult result = trainer.run(
+      [&](const TrainProgress& p) {
+        epoch_reports += p.epoch_end;
+        EXPECT_TRUE(std::isfinite(p.loss));
+      },
+      stop);
+  EXPECT_EQ(result.stop, TrainStop::finished);
+  EXPECT_EQ(epoch_reports, 6);
+  const double trained_deg = 0.5 * (result.last.val_alpha_mean_deg + result.last.val_beta_mean_deg);
+  std::printf("untrained %.4f deg, trained %.4f deg (best %.4f) in %.1f s\n", untrained_deg, trained_deg,
+              result.last.best_val_mean_deg, result.wall_s);
+  // Untrained, the network is the physics prior: the centre of the active
+  // pixels through the nominal pinhole (about 1 px of error here). Learning
+  // must do much better than that.
+  EXPECT_GT(untrained_deg, 0.005);
+  EXPECT_LT(result.last.best_val_mean_deg, 0.5 * untrained_deg);
+
+  // The saved model carries the best weights and the training summary.
+  const std::string path = tempPath("model.dssm");
+  trainer.saveModel(path, "tiny set");
+  const std::string bytes = readFile(path);
+  EXPECT_NE(bytes.find("best_epoch"), std::string::npos);
+  EXPECT_NE(bytes.find("tiny set"), std::string::npos);
+  std::remove(path.c_str());
+}
+
+TEST(Train, ResumedRunReachesTheSameWeights) {
+  TrainingSet train{tinySet().spec()}, validation{tinySet().spec()};
+  tinySet().split(0.2, 1, train, validation);
+  TrainOptions options = tinyOptions();
+  options.epochs = 2;
+  std::atomic<bool> stop{false};
+
+  Trainer uninterrupted(tinySensor(), train, validation, options);
+  ASSERT_EQ(uninterrupted.run({}, stop).stop, TrainStop::finished);
+
+  options.checkpoint_path = tempPath("resume.ckpt");
+  {
+    Trainer first(tinySensor(), train, validation, options);
+    // Interrupt mid-epoch: epoch 2, after its 5th step.
+    const TrainResult r = first.run(
+        [&](const TrainProgress& p) {
+          if (p.epoch == 1 && p.step_in_epoch == 5) stop = true;
+        },
+        stop);
+    ASSERT_EQ(r.stop, TrainStop::interrupted);
+    EXPECT_NE(first.flatWeights(), uninterrupted.flatWeights());
+  }
+  stop = false;
+  Trainer resumed(tinySensor(), train, validation, options);
+  resumed.resume(options.checkpoint_path);
+  ASSERT_EQ(resumed.run({}, stop).stop, TrainStop::finished);
+  const auto a = uninterrupted.flatWeights(), b = resumed.flatWeights();
+  ASSERT_EQ(a.size(), b.size());
+  double max_diff = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) max_diff = std::max(max_diff, std::abs(double(a[i]) - double(b[i])));
+  EXPECT_EQ(max_diff, 0.0) << "weights differ by up to " << max_diff;
+  std::remove(options.checkpoint_path.c_str());
+}
+
+TEST(Train, BadCheckpointsAndOptionsAreRejected) {
+  TrainingSet train{tinySet().spec()}, validation{tinySet().spec()};
+  tinySet().split(0.2, 1, train, validation);
+  TrainOptions options = tinyOptions();
+  options.epochs = 1;
+  options.checkpoint_path = tempPath("bad.ckpt");
+  std::atomic<bool> stop{true};  // checkpoint at once
+  Trainer(tinySensor(), train, validation, options).run({}, stop);
+
+  auto resumeError = [&](const TrainOptions& o, const TrainingSet& t) -> std::string {
+    try {
+      Trainer(tinySensor(), t, validation, o).resume(options.checkpoint_path);
+    } catch (const CheckpointError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  TrainOptions other_seed = options;
+  other_seed.seed = 4;
+  EXPECT_NE(resumeError(other_seed, train).find("seed"), std::string::npos);
+  TrainingSet fewer{train.spec()};
+  for (std::size_t i = 1; i < train.size(); ++i) fewer.add(train.samples()[i]);
+  EXPECT_NE(resumeError(options, fewer).find("different training data"), std::string::npos);
+
+  std::string bytes = readFile(options.checkpoint_path);
+  bytes[bytes.size() / 2] ^= 0x55;
+  writeFileAtomic(options.checkpoint_path, bytes);
+  EXPECT_NE(resumeError(options, train).find("checksum"), std::string::npos);
+  writeFileAtomic(options.checkpoint_path, "hello");
+  EXPECT_NE(resumeError(options, train).find("not a digital_sun_sensor training checkpoint"), std::string::npos);
+  std::remove(options.checkpoint_path.c_str());
+  EXPECT_NE(resumeError(options, train).find("bad.ckpt"), std::string::npos);
+
+  TrainOptions bad = options;
+  bad.batch_size = 0;
+  EXPECT_THROW(Trainer(tinySensor(), train, validation, bad), std::invalid_argument);
+  AugmentationConfig aug;
+  EXPECT_THROW(setAugmentation(aug, "nosie_probability=0.1"), std::invalid_argument);
+  EXPECT_THROW(setAugmentation(aug, "noise_probability=x"), std::invalid_argument);
+  EXPECT_THROW(setAugmentation(aug, "noise_probability=-1"), std::invalid_argument);
+  setAugmentation(aug, "noise_probability=0.5");
+  EXPECT_EQ(aug.noise_probability, 0.5);
+}
+
+TEST(Train, AugmentationIsSeededAndKeepsLabels) {
+  const SparseSample& s = tinySet().samples()[0];
+  AugmentationConfig config;
+  config.gain_probability = config.noise_probability = config.threshold_probability = config.dropout_probability = 1;
+  config.gain_sigma = 0.2;
+  config.noise_sigma_dn = 5;
+  config.threshold_max_fraction = 0.5;
+  config.dropout_max_radius_px = 4;
+  const InputSpec& spec = tinySet().spec();
+  const SparseSample a = augment(s, spec, config, 9), b = augment(s, spec, config, 9), c = augment(s, spec, config, 10);
+  EXPECT_EQ(a.pixels, b.pixels);
+  EXPECT_EQ(a.dn, b.dn);
+  EXPECT_NE(a.dn, c.dn);
+  EXPECT_EQ(a.alpha_rad, s.alpha_rad);
+  EXPECT_EQ(a.subfov_class, s.subfov_class);
+  EXPECT_FALSE(a.pixels.empty());
+  EXPECT_LE(a.pixels.size(), s.pixels.size());
+  for (auto v : a.dn) EXPECT_GT(v, spec.threshold_dn);
+}
+
+}  // namespace
+}  // namespace dss
