@@ -1,12 +1,12 @@
 #include "digital_sun_sensor/ros/simulator_node.h"
 
 #include "digital_sun_sensor/ros/conversions.h"
+#include "digital_sun_sensor/ros/node_params.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/spot_cache.h"
 
 #include <nodelet/nodelet.h>
 #include <pluginlib/class_list_macros.hpp>
-#include <ros/package.h>
 
 #include <Eigen/Geometry>
 
@@ -25,18 +25,12 @@ double triangle(double x) {
   return m < 2.0 ? m - 1.0 : 3.0 - m;
 }
 
-std::string resolveSensorPath(const std::string& value) {
-  if (value.find('/') != std::string::npos) return value;
-  // A bare name: a shipped config.
-  return ros::package::getPath("digital_sun_sensor") + "/config/sensors/" + value + ".yaml";
-}
-
 }  // namespace
 
 SimulatorNode::SimulatorNode(ros::NodeHandle nh, ros::NodeHandle pnh) : nh_(nh), pnh_(pnh) {
   const std::string sensor = pnh_.param<std::string>("sensor_config", "thesis_sa");
   std::vector<std::string> overrides = pnh_.param<std::vector<std::string>>("config_overrides", {});
-  SensorConfig config = loadSensorConfig(resolveSensorPath(sensor), overrides);
+  SensorConfig config = loadSensorConfig(resolveSensorConfigPath(sensor), overrides);
 
   rate_hz_ = pnh_.param("rate_hz", 10.0);
   if (!(rate_hz_ > 0.0 && rate_hz_ <= 10000.0)) throw std::runtime_error("~rate_hz must be in (0, 10000]");
