@@ -166,11 +166,45 @@ TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
   for (const auto& f : {cal, test, calib, csv}) std::remove(f.c_str());
 }
 
+// dss train on a small bag writes a model that dss eval runs as sscnn:MODEL;
+// a too-short time limit stops with a checkpoint (exit 3) that --resume
+// finishes; bad options and mismatched checkpoints are refused.
+TEST(Train, TrainThenEvalAndResume) {
+  const std::string bag = tmp("train.bag"), model = tmp("model.dssm"), ckpt = tmp("model.ckpt");
+  ASSERT_EQ(run("generate --sensor " + kSensor + " --count 96 --seed 6 --set optics.psf_node_step_deg=3 --out " + bag).code, 0);
+  const std::string common = "train --data " + bag + " --out " + model + " --arch resnet10_w16 --batch 16 --epochs 2";
+  auto r = run(common + " --checkpoint " + ckpt + " --max-minutes 0.00001");
+  EXPECT_EQ(r.code, 3) << r.output;
+  EXPECT_NE(r.output.find("\"stop\": \"time_limit\""), std::string::npos) << r.output;
+  EXPECT_FALSE(exists(model));
+  EXPECT_TRUE(exists(ckpt));
+  r = run(common + " --resume " + ckpt);
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::string line = lastLine(r.output, "{\"command\"");
+  EXPECT_EQ(jsonNumber(line, "epochs_completed"), 2) << line;
+  EXPECT_LT(jsonNumber(line, "val_alpha_mean_deg"), 0.1) << line;
+  EXPECT_NE(r.output.find("epoch 2/2 done"), std::string::npos) << r.output;
+  ASSERT_TRUE(exists(model));
+  r = run("eval --data " + bag + " --estimator sscnn:" + model + " --crlb-samples 0");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_EQ(jsonNumber(lastLine(r.output, "{\"estimator\""), "n"), 96);
+
+  r = run(common + " --resume " + ckpt + " --seed 9");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find("seed"), std::string::npos) << r.output;
+  r = run(common + " --augment noise=0.3");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find("unknown augmentation 'noise'"), std::string::npos) << r.output;
+  r = run(common + " --val-fraction 1.5");
+  EXPECT_EQ(r.code, 2);
+  for (const auto& f : {bag, model, ckpt}) std::remove(f.c_str());
+}
+
 // Unusable data is refused with a message naming the file and the problem.
 TEST(Baseline, BadBagsGetClearErrors) {
   const std::string empty = tmp("empty.bag"), junk = tmp("junk.bag"), good = tmp("good.bag"), cut = tmp("cut.bag"),
                     other = tmp("other.bag"), small = tmp("small.bag"), calib = tmp("bad_calib.yaml");
-  { std::ofstream(empty); }
+  { std::ofstream touch(empty); }
   { std::ofstream(junk) << std::string(5000, 'x'); }
   ASSERT_EQ(run("generate --sensor " + kSensor + " --count 30 --seed 3 --set optics.psf_node_step_deg=3 --out " + good).code, 0);
   const std::string bytes = slurp(good);

@@ -116,14 +116,14 @@ int runTrain(int argc, char** argv) {
               << "; continue with: dss train ... --resume " << options.checkpoint_path << "\n";
   }
   const auto& p = result.last;
-  std::cout << "{\"command\":\"train\",\"sensor\":\"" << data.sensor.name << "\",\"arch\":\"" << options.arch
-            << "\",\"stop\":\"" << toString(result.stop) << "\",\"model\":" << (complete ? "\"" + args.get("out") + "\"" : "null")
-            << ",\"checkpoint\":\"" << options.checkpoint_path << "\",\"epochs_completed\":"
-            << p.epoch + (p.epoch_end ? 1 : 0) << ",\"wall_s\":" << result.wall_s
-            << ",\"images_per_s\":" << p.images_per_s << ",\"val_alpha_mean_deg\":" << p.val_alpha_mean_deg
-            << ",\"val_beta_mean_deg\":" << p.val_beta_mean_deg << ",\"val_alpha_max_deg\":" << p.val_alpha_max_deg
-            << ",\"val_beta_max_deg\":" << p.val_beta_max_deg << ",\"val_class_accuracy\":" << p.val_class_accuracy
-            << ",\"best_val_mean_deg\":" << p.best_val_mean_deg << ",\"best_epoch\":" << p.best_epoch + 1 << "}"
+  std::cout << "{\"command\": \"train\", \"sensor\": \"" << data.sensor.name << "\", \"arch\": \"" << options.arch
+            << "\", \"stop\": \"" << toString(result.stop) << "\", \"model\": " << (complete ? "\"" + args.get("out") + "\"" : "null")
+            << ", \"checkpoint\": \"" << options.checkpoint_path << "\", \"epochs_completed\": "
+            << p.epoch + (p.epoch_end ? 1 : 0) << ", \"wall_s\": " << result.wall_s
+            << ", \"images_per_s\": " << p.images_per_s << ", \"val_alpha_mean_deg\": " << p.val_alpha_mean_deg
+            << ", \"val_beta_mean_deg\": " << p.val_beta_mean_deg << ", \"val_alpha_max_deg\": " << p.val_alpha_max_deg
+            << ", \"val_beta_max_deg\": " << p.val_beta_max_deg << ", \"val_class_accuracy\": " << p.val_class_accuracy
+            << ", \"best_val_mean_deg\": " << p.best_val_mean_deg << ", \"best_epoch\": " << p.best_epoch + 1 << "}"
             << std::endl;
   return complete ? 0 : 3;
 }
