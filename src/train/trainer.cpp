@@ -216,10 +216,16 @@ struct Trainer::Impl {
     last.learning_rate = lr;
     optimizer->zero_grad();
     const auto out = model.net->forward(input);
-    // Heteroscedastic Gaussian NLL: the angles and an honest per-image variance.
-    const auto nll =
-        (0.5 * (out.angles - target).pow(2) * torch::exp(-out.log_variance) + 0.5 * out.log_variance).mean();
-    auto loss = nll;
+    // Angles by squared error, every image weighted alike (a full Gaussian NLL
+    // lets the network buy a small loss on hard images, e.g. spots cut by the
+    // edge, with a large variance, and the worst errors grow); the variance by
+    // the Gaussian NLL of the detached error, so it learns to be honest
+    // without steering the angles. Scaled to order one at the residual scale.
+    const auto error = out.angles - target;
+    const double scale = model.meta.arch.residual_scale;
+    const auto mse = error.pow(2).mean() / (scale * scale);
+    const auto nll = (0.5 * error.detach().pow(2) * torch::exp(-out.log_variance) + 0.5 * out.log_variance).mean();
+    auto loss = mse + nll;
     if (sensor.numSubFovClasses() > 1 && options.class_loss_weight > 0) {
       const auto ce = torch::cross_entropy_loss(out.class_logits, torch::tensor(classes));
       loss = loss + options.class_loss_weight * ce;
