@@ -35,6 +35,7 @@ int runTrain(int argc, char** argv) {
           {"data", "BAG", "dataset bag(s) of /sun_sensor/image + /sun_sensor/truth", "", true, true},
           {"out", "MODEL", "model file to write", "", true, false},
           {"sensor", "CFG", "sensor config (default: the one recorded in the first bag)", "", false, false},
+          {"set", "KEY=VALUE", "override a key of --sensor", "", false, true},
           {"arch", "A", "architecture (resnet34, resnet18, resnet18_w32, resnet10_w16)", defaultArchName(), false,
            false},
           {"resume", "CKPT", "continue from this checkpoint", "", false, false},
@@ -79,7 +80,7 @@ int runTrain(int argc, char** argv) {
   options.validate();
 
   std::optional<SensorConfig> sensor;
-  if (args.has("sensor")) sensor = loadSensorFromArgs(args);
+  if (args.has("sensor")) sensor = loadSensorConfig(args.get("sensor"), args.all("set"));
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
   std::unique_ptr<Progress> reading;
   TrainingData data = loadTrainingData(args.all("data"), sensor, {}, max_images, [&](std::uint64_t done, std::uint64_t total) {

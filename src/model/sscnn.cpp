@@ -217,8 +217,12 @@ SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
   const torch::Tensor pooled = torch::cat({x.mean({2, 3}), x.amax({2, 3})}, 1);
   torch::Tensor centroid;
   if (arch_.centroid_pool) {
-    auto c = centroid_conv2_->forwardDense(torch::relu(centroid_conv1_->forwardDense(input.slice(1, 0, 1))));
-    auto w = torch::softplus(c);
+    // Inactive pixels (zero in every channel) hold no features and get no
+    // weight, as in the submanifold branch.
+    const auto value = input.slice(1, 0, 1);
+    const auto active = (value != 0).to(value.scalar_type());
+    const auto c = torch::relu(centroid_conv1_->forwardDense(value)) * active;
+    const auto w = torch::softplus(centroid_conv2_->forwardDense(c)) * active;
     centroid = (w * input.slice(1, 1, 3)).sum({2, 3}) / (w.sum({2, 3}) + 1e-6);
   }
   return head(pooled, centroid);

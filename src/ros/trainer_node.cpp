@@ -51,11 +51,10 @@ TrainOptions optionsFromParams(const ros::NodeHandle& pnh) {
 
 class TrainerNode {
  public:
-  TrainerNode(ros::NodeHandle nh, ros::NodeHandle pnh) : pnh_(pnh) {
+  explicit TrainerNode(ros::NodeHandle pnh) : pnh_(pnh) {
     progress_pub_ = pnh_.advertise<digital_sun_sensor::TrainingProgress>("progress", 10, /*latch=*/true);
     updater_.setHardwareID("trainer");
     updater_.add("training", this, &TrainerNode::diagnose);
-    (void)nh;
   }
 
   int run() {
@@ -206,10 +205,10 @@ int main(int argc, char** argv) {
   ros::init(argc, argv, "trainer", ros::init_options::NoSigintHandler);
   std::signal(SIGINT, dss::onStopSignal);
   std::signal(SIGTERM, dss::onStopSignal);
-  ros::NodeHandle nh, pnh("~");
+  ros::NodeHandle pnh("~");
   ros::AsyncSpinner spinner(1);
   spinner.start();
-  dss::TrainerNode node(nh, pnh);
+  dss::TrainerNode node(pnh);
   const int code = node.run();
   ros::WallDuration(1.0).sleep();  // the last (latched) message reaches late subscribers
   ros::shutdown();

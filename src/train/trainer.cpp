@@ -287,7 +287,8 @@ struct Trainer::Impl {
     last.best_epoch = best_epoch;
   }
 
-  std::string stateYaml() const {
+  // `elapsed_s`: training wall time up to now, over every run of this job.
+  std::string stateYaml(double elapsed_s) const {
     YAML::Emitter e;
     e << YAML::BeginMap;
     e << YAML::Key << "sensor" << YAML::Value << sensor.name;
@@ -298,7 +299,7 @@ struct Trainer::Impl {
     e << YAML::Key << "data_fingerprint" << YAML::Value << data_fingerprint;
     e << YAML::Key << "epoch" << YAML::Value << epoch;
     e << YAML::Key << "step_in_epoch" << YAML::Value << step_in_epoch;
-    e << YAML::Key << "elapsed_s" << YAML::Value << elapsed_before_s;
+    e << YAML::Key << "elapsed_s" << YAML::Value << elapsed_s;
     e << YAML::Key << "best_val_mean_deg" << YAML::Value << best_val_mean_deg;
     e << YAML::Key << "best_epoch" << YAML::Value << best_epoch;
     e << YAML::EndMap;
@@ -313,8 +314,9 @@ struct Trainer::Impl {
     return stream.str();
   }
 
-  void saveCheckpoint(const std::string& path) const {
-    writeFileAtomic(path, packSections({stateYaml(), serializeModel(model), best_model_bytes, optimizerBytes()}));
+  void saveCheckpoint(const std::string& path, double elapsed_s) const {
+    writeFileAtomic(path,
+                    packSections({stateYaml(elapsed_s), serializeModel(model), best_model_bytes, optimizerBytes()}));
   }
 
   void resume(const std::string& path) {
@@ -352,9 +354,11 @@ struct Trainer::Impl {
     try {
       Model restored = deserializeModel(sections[1], origin, &sensor);
       torch::NoGradGuard no_grad;
-      auto dst = model.net->parameters();
-      auto src = restored.net->parameters();
+      // Same architecture, so the same tensors in the same order.
+      auto dst = model.net->parameters(), src = restored.net->parameters();
       for (std::size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
+      auto dst_buffers = model.net->buffers(), src_buffers = restored.net->buffers();
+      for (std::size_t i = 0; i < dst_buffers.size(); ++i) dst_buffers[i].copy_(src_buffers[i]);
       best_model_bytes = sections[2];
       torch::serialize::InputArchive archive;
       std::istringstream stream(sections[3]);
@@ -404,7 +408,6 @@ Trainer::Trainer(const SensorConfig& sensor, TrainingSet train, TrainingSet vali
 Trainer::~Trainer() = default;
 
 void Trainer::resume(const std::string& checkpoint_path) { impl_->resume(checkpoint_path); }
-void Trainer::saveCheckpoint(const std::string& path) const { impl_->saveCheckpoint(path); }
 std::int64_t Trainer::stepsPerEpoch() const { return impl_->stepsPerEpoch(); }
 
 TrainProgress Trainer::measureValidation() {
@@ -454,10 +457,7 @@ TrainResult Trainer::run(const std::function<void(const TrainProgress&)>& on_pro
   };
   auto checkpoint = [&] {
     if (m.options.checkpoint_path.empty()) return;
-    const double saved = m.elapsed_before_s;
-    m.elapsed_before_s += secondsSince(start);  // the file records the wall time so far
-    m.saveCheckpoint(m.options.checkpoint_path);
-    m.elapsed_before_s = saved;
+    m.saveCheckpoint(m.options.checkpoint_path, m.elapsed_before_s + secondsSince(start));
     last_checkpoint = Clock::now();
   };
 

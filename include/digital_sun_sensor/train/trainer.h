@@ -27,7 +27,7 @@ struct TrainOptions {
   int batch_size = 64;
   int epochs = 20;                  // the learning-rate schedule spans this many epochs
   int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
-  double learning_rate = 2e-3;      // peak, after a linear warm-up
+  double learning_rate = 5e-4;      // peak, after a linear warm-up (measured: README "Training")
   double warmup_fraction = 0.03;    // of all steps
   double final_lr_fraction = 0.01;  // cosine decay ends at this fraction of the peak
   double weight_decay = 0.0;        // AdamW decoupled decay
@@ -97,7 +97,6 @@ class Trainer {
   // The best validated (else the latest) weights as a model file (atomic),
   // with training summary and validation metrics in its metadata.
   void saveModel(const std::string& path, const std::string& data_description) const;
-  void saveCheckpoint(const std::string& path) const;
 
   // Validation figures of the current weights (the val_* fields), without
   // touching the best-model bookkeeping.

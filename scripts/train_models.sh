@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Reproduces the shipped models in models/ and README's accuracy table: for each
+# sensor, a training bag and a fresh-seed test bag (continuous random angles over
+# the whole field of view), `dss train`, then `dss eval` of the model and of the
+# centroid baseline (calibrated on the first 1000 training images) on the same
+# test bag. Bags go to DATA_DIR (default .ws/models_data), never into git.
+#   scripts/train_models.sh [SENSOR...]     (default: thesis_sa thesis_ma wide_ma)
+# Bags and finished models already present are reused; an interrupted training
+# resumes from its checkpoint. Results: DATA_DIR/<sensor>.*.json.
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+WS="${DSS_WS:-$ROOT/.ws}"
+DATA="${DATA_DIR:-$WS/models_data}"
+DSS="${DSS:-$WS/devel/lib/digital_sun_sensor/dss}"
+[ -x "$DSS" ] || { echo "dss not built: run scripts/setup.sh" >&2; exit 1; }
+mkdir -p "$DATA" "$ROOT/models"
+
+# sensor, training images, training seed, test seed, epochs
+recipe() {
+  case "$1" in
+    thesis_sa) echo "60000 501 502 45" ;;
+    thesis_ma) echo "60000 511 512 45" ;;
+    wide_ma) echo "60000 521 522 45" ;;
+    *) echo "unknown sensor '$1'" >&2; exit 2 ;;
+  esac
+}
+
+for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
+  for s in $sensor; do
+    read -r count train_seed test_seed epochs <<<"$(recipe "$s")"
+    cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
+    model="$ROOT/models/$s.dssmodel" ckpt="$DATA/$s.ckpt"
+    [ -f "$train" ] || "$DSS" generate --sensor "$cfg" --count "$count" --seed "$train_seed" --out "$train"
+    [ -f "$test" ] || "$DSS" generate --sensor "$cfg" --count 10000 --seed "$test_seed" --out "$test"
+    if [ ! -f "$model" ]; then
+      resume=()
+      [ -f "$ckpt" ] && resume=(--resume "$ckpt")
+      "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --lr 5e-4 --seed 1 "${resume[@]}" \
+        | tee "$DATA/$s.train.json"
+    fi
+    "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$s.sscnn.csv" | tee "$DATA/$s.sscnn.json"
+    "$DSS" calibrate --data "$train" --max-images 1000 --out "$DATA/$s.calib.yaml" > "$DATA/$s.calibrate.json"
+    "$DSS" eval --data "$test" --estimator "centroid:$DATA/$s.calib.yaml" --csv "$DATA/$s.centroid.csv" \
+      | tee "$DATA/$s.centroid.json"
+  done
+done
