@@ -2,6 +2,9 @@
 // Poisson noise, and the maximum-likelihood fit reaching it.
 #include <gtest/gtest.h>
 
+#include <cstdio>
+#include <limits>
+
 #include <Eigen/Dense>
 #include <cmath>
 
@@ -97,6 +100,28 @@ TEST(Crlb, SensorBoundScalesWithLight) {
   EXPECT_GT(dim(0, 0), 0.0);
   EXPECT_NEAR(dim(0, 0) / dim(1, 1), 1.0, 0.02);
   EXPECT_NEAR(dim(0, 0) / bright(0, 0), 4.0, 0.1);
+}
+
+// A threshold censors pixels below it: the Tobit information share is 1 far
+// above, 0 far below and 1/2 + 1/pi at the mean; the sensor's bound with its
+// on-chip threshold is weaker than the raw readout's, and equal without one.
+TEST(Crlb, ThresholdCensoringLosesInformation) {
+  EXPECT_EQ(censoredInformationShare(-std::numeric_limits<double>::infinity()), 1.0);
+  EXPECT_NEAR(censoredInformationShare(-8.0), 1.0, 1e-9);
+  EXPECT_NEAR(censoredInformationShare(0.0), 0.5 + 1.0 / 3.14159265358979323846, 1e-12);
+  EXPECT_LT(censoredInformationShare(6.0), 1e-6);
+  for (double a = -5; a < 5; a += 0.25)
+    EXPECT_GE(censoredInformationShare(a), censoredInformationShare(a + 0.25) - 1e-12) << a;
+
+  const auto path = std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml";
+  const CrlbCalculator thresholded(loadSensorConfig(path, {"optics.psf_node_step_deg=3"}));
+  const Eigen::Matrix2d raw = thresholded.covariance(0.01, 0.01), read = thresholded.readoutCovariance(0.01, 0.01);
+  ASSERT_TRUE(read.allFinite());
+  EXPECT_GT(read(0, 0), 1.5 * raw(0, 0));
+  std::printf("thesis_sa bound at (0.57, 0.57) deg: raw %.6f deg, 90%% threshold %.6f deg\n",
+              std::sqrt(raw(0, 0)) * 180 / 3.14159265358979323846, std::sqrt(read(0, 0)) * 180 / 3.14159265358979323846);
+  const CrlbCalculator plain(loadSensorConfig(path, {"optics.psf_node_step_deg=3", "threshold.enabled=false"}));
+  EXPECT_EQ(plain.covariance(0.01, 0.01), plain.readoutCovariance(0.01, 0.01));
 }
 
 }  // namespace

@@ -45,6 +45,9 @@ void computeBounds(std::vector<EvalRecord>& records, const SensorConfig& config,
     const Eigen::Matrix2d cov = crlb.covariance(r.alpha_true_rad, r.beta_true_rad);
     r.crlb_alpha_rad2 = cov(0, 0);
     r.crlb_beta_rad2 = cov(1, 1);
+    const Eigen::Matrix2d readout = crlb.readoutCovariance(r.alpha_true_rad, r.beta_true_rad);
+    r.readout_crlb_alpha_rad2 = readout(0, 0);
+    r.readout_crlb_beta_rad2 = readout(1, 1);
     ++done;
     return true;
   };

@@ -1,6 +1,7 @@
 #include "digital_sun_sensor/eval/crlb.h"
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -8,8 +9,16 @@
 
 namespace dss {
 
+double censoredInformationShare(double a) {
+  if (!std::isfinite(a)) return a < 0 ? 1.0 : 0.0;
+  const double phi = std::exp(-0.5 * a * a) / std::sqrt(2.0 * 3.14159265358979323846);
+  const double cdf = 0.5 * std::erfc(-a / std::sqrt(2.0));
+  return std::max(0.0, 1.0 - cdf + a * phi + (cdf > 1e-300 ? phi * phi / cdf : 0.0));
+}
+
 Eigen::MatrixXd fisherInformation(const cv::Mat& mean, const std::vector<cv::Mat>& derivatives,
-                                  const std::function<double(double)>& variance, double max_mean) {
+                                  const std::function<double(double)>& variance, double max_mean,
+                                  double censor_below) {
   const int n = static_cast<int>(derivatives.size());
   cv::Mat m64;
   mean.convertTo(m64, CV_64F);
@@ -31,7 +40,9 @@ Eigen::MatrixXd fisherInformation(const cv::Mat& mean, const std::vector<cv::Mat
       }
       if (!any) continue;
       const double v = variance(mu[c]);
-      if (v > 0.0) fisher.noalias() += g * g.transpose() / v;
+      if (!(v > 0.0)) continue;
+      const double share = censoredInformationShare((censor_below - mu[c]) / std::sqrt(v));
+      if (share > 0.0) fisher.noalias() += g * g.transpose() * (share / v);
     }
   }
   return fisher;
@@ -44,6 +55,11 @@ CrlbCalculator::CrlbCalculator(const SensorConfig& config) {
   constant_variance_e2_ = n.read_noise_e * n.read_noise_e + step_e * step_e / 12.0;
   prnu_fraction_ = n.prnu_fraction;
   dark_e_per_s_ = n.darkCurrentAtTemperatureEPerS();
+  if (config.threshold.enabled) {
+    // Codes below the level read 0; code d holds signals from (d - 0.5 - black) / gain.
+    const double level_code = std::ceil(config.threshold.level_fraction * config.maxCode());
+    threshold_e_ = (level_code - 0.5 - n.black_level_dn) * step_e;
+  }
 }
 
 CrlbCalculator::~CrlbCalculator() = default;
@@ -53,6 +69,14 @@ double CrlbCalculator::pixelVariance(double mean_e) const {
 }
 
 Eigen::Matrix2d CrlbCalculator::covariance(double alpha_rad, double beta_rad) const {
+  return bound(alpha_rad, beta_rad, false);
+}
+
+Eigen::Matrix2d CrlbCalculator::readoutCovariance(double alpha_rad, double beta_rad) const {
+  return bound(alpha_rad, beta_rad, true);
+}
+
+Eigen::Matrix2d CrlbCalculator::bound(double alpha_rad, double beta_rad, bool censored) const {
   const SensorConfig& config = renderer_->config();
   ImageTruth truth;
   const cv::Mat mean = renderer_->expectedElectrons(sunVectorFromAngles(alpha_rad, beta_rad), &truth);
@@ -74,7 +98,8 @@ Eigen::Matrix2d CrlbCalculator::covariance(double alpha_rad, double beta_rad) co
   }
   const double dark_e = dark_e_per_s_ * exposure_s;
   const Eigen::MatrixXd fisher = fisherInformation(
-      mean, derivatives, [&](double mu) { return pixelVariance(mu) + dark_e; }, config.noise.full_well_e);
+      mean, derivatives, [&](double mu) { return pixelVariance(mu) + dark_e; }, config.noise.full_well_e,
+      censored ? threshold_e_ - dark_e : -std::numeric_limits<double>::infinity());
   const Eigen::Matrix2d f = fisher;
   if (!(f.determinant() > 0.0)) return Eigen::Matrix2d::Constant(std::numeric_limits<double>::infinity());
   return f.inverse();

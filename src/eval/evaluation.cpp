@@ -57,7 +57,8 @@ EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string&
   s.n = records.size();
   std::vector<double> ea, eb;
   std::size_t class_known = 0, class_right = 0;
-  double err_sq = 0.0, bound_sq = 0.0;
+  double err_sq = 0.0, bound_sq = 0.0, readout_err_sq = 0.0, readout_bound_sq = 0.0;
+  std::size_t readout_samples = 0;
   for (const auto& r : records) {
     if (!r.estimate.valid) continue;
     ++s.valid;
@@ -74,6 +75,11 @@ EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string&
       err_sq += a * a + b * b;
       bound_sq += r.crlb_alpha_rad2 + r.crlb_beta_rad2;
     }
+    if (std::isfinite(r.readout_crlb_alpha_rad2) && std::isfinite(r.readout_crlb_beta_rad2)) {
+      ++readout_samples;
+      readout_err_sq += a * a + b * b;
+      readout_bound_sq += r.readout_crlb_alpha_rad2 + r.readout_crlb_beta_rad2;
+    }
   }
   s.alpha = axisStats(ea);
   s.beta = axisStats(eb);
@@ -83,6 +89,10 @@ EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string&
   if (s.crlb_samples && bound_sq > 0.0) {
     s.crlb_ratio = std::sqrt(err_sq / bound_sq);
     s.crlb_rms_deg = std::sqrt(bound_sq / (2.0 * s.crlb_samples)) * kRadToDeg;
+  }
+  if (readout_samples && readout_bound_sq > 0.0) {
+    s.readout_crlb_ratio = std::sqrt(readout_err_sq / readout_bound_sq);
+    s.readout_crlb_rms_deg = std::sqrt(readout_bound_sq / (2.0 * readout_samples)) * kRadToDeg;
   }
   return s;
 }
@@ -99,7 +109,9 @@ std::string EvalSummary::toJson() const {
   }
   os << ", \"subfov_accuracy\": " << number(subfov_accuracy) << ", \"valid_rate\": " << number(valid_rate)
      << ", \"ms_per_image\": " << number(ms_per_image) << ", \"crlb_ratio\": " << number(crlb_ratio)
-     << ", \"crlb_rms_deg\": " << number(crlb_rms_deg) << ", \"crlb_samples\": " << crlb_samples << "}";
+     << ", \"crlb_rms_deg\": " << number(crlb_rms_deg) << ", \"crlb_samples\": " << crlb_samples
+     << ", \"readout_crlb_ratio\": " << number(readout_crlb_ratio)
+     << ", \"readout_crlb_rms_deg\": " << number(readout_crlb_rms_deg) << "}";
   return os.str();
 }
 

@@ -126,16 +126,21 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
     mlp_.push_back(register_module("mlp" + std::to_string(i + 1), torch::nn::Linear(features, arch.head_hidden[i])));
     features = arch.head_hidden[i];
   }
-  output_ = register_module("output", torch::nn::Linear(features, 4));
+  output_ = register_module("output", torch::nn::Linear(features, 2));
+  // The variance reads the angle MLP's features but sends no gradient into
+  // them: its NLL, which grows as the variance shrinks, would otherwise steer
+  // the features the angles need.
+  variance_ = register_module("variance", torch::nn::Linear(features, 2));
   // The classes get their own branch: in a shared MLP the angle NLL's gradients,
   // which grow as the variance shrinks, drown the cross-entropy's.
   const int head_in = 2 * channels + (arch.centroid_pool ? 2 : 0), class_hidden = arch.head_hidden.back();
   class_hidden_ = register_module("class_hidden", torch::nn::Linear(head_in, class_hidden));
   class_output_ = register_module("class_output", torch::nn::Linear(class_hidden, arch.num_classes));
   torch::NoGradGuard no_grad;
-  output_->weight.mul_(0.1);  // start near unit variance...
+  output_->weight.zero_();  // start with angle corrections of zero...
   output_->bias.zero_();
-  output_->weight.slice(0, 0, 2).zero_();  // ...and angle corrections of zero
+  variance_->weight.mul_(0.1);  // ...and unit variance
+  variance_->bias.zero_();
 }
 
 void SscnnNetImpl::initCentroidMap(double slope_x, double slope_y) {
@@ -174,12 +179,11 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const torch::Tensor&
   SscnnOutput result;
   result.class_logits = class_output_->forward(torch::silu(class_hidden_->forward(h)));
   for (auto& layer : mlp_) h = torch::silu(layer->forward(h));
-  const torch::Tensor out = output_->forward(h);
-  result.angles = arch_.residual_scale * out.slice(1, 0, 2);
+  result.angles = arch_.residual_scale * output_->forward(h);
   if (centroid.defined())
     result.angles = result.angles + centroid * centroid_prior_ +
                     arch_.residual_scale * centroid_skip_->forward(monomials(centroid));
-  result.log_variance = out.slice(1, 2, 4);
+  result.log_variance = variance_->forward(h.detach());
   return result;
 }
 

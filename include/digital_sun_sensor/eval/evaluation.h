@@ -23,6 +23,9 @@ struct EvalRecord {
   // Cramer-Rao bound variances [rad^2] where computed (NaN otherwise).
   double crlb_alpha_rad2 = std::numeric_limits<double>::quiet_NaN();
   double crlb_beta_rad2 = std::numeric_limits<double>::quiet_NaN();
+  // The same for the readout as configured (on-chip threshold censoring).
+  double readout_crlb_alpha_rad2 = std::numeric_limits<double>::quiet_NaN();
+  double readout_crlb_beta_rad2 = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct AxisStats {
@@ -41,6 +44,9 @@ struct EvalSummary {
   double crlb_ratio = std::numeric_limits<double>::quiet_NaN();
   double crlb_rms_deg = std::numeric_limits<double>::quiet_NaN();
   std::size_t crlb_samples = 0;
+  // The same against the bound of the readout as configured.
+  double readout_crlb_ratio = std::numeric_limits<double>::quiet_NaN();
+  double readout_crlb_rms_deg = std::numeric_limits<double>::quiet_NaN();
 
   std::string toJson() const;  // one line, DESIGN section 7 keys first
 };

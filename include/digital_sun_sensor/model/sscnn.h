@@ -73,7 +73,8 @@ class SscnnNetImpl : public torch::nn::Module {
   std::vector<std::shared_ptr<ResidualBlockImpl>> blocks_;
   torch::nn::LayerNorm head_norm_{nullptr};
   std::vector<torch::nn::Linear> mlp_;
-  torch::nn::Linear output_{nullptr}, centroid_skip_{nullptr}, class_hidden_{nullptr}, class_output_{nullptr};
+  torch::nn::Linear output_{nullptr}, variance_{nullptr}, centroid_skip_{nullptr}, class_hidden_{nullptr},
+      class_output_{nullptr};
   torch::Tensor centroid_prior_;  // buffer: angle per unit centroid, per axis
 };
 
