@@ -1,6 +1,5 @@
 // dss bench infer | train: SSCNN speed, sparse vs the same network run densely.
-#include <torch/nn/functional/loss.h>
-#include <torch/optim/adam.h>
+#include <torch/optim/adamw.h>
 
 #include <algorithm>
 #include <chrono>
@@ -12,6 +11,8 @@
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sparse/threads.h"
+#include "digital_sun_sensor/train/loss.h"
+#include "digital_sun_sensor/train/trainer.h"
 #include "progress.h"
 
 namespace dss::cli {
@@ -133,7 +134,7 @@ int runBenchTrain(int argc, char** argv) {
                                 {"images", "N", "distinct simulated images cycled through", "256", false, false},
                             });
   Args args("dss bench train",
-            "SSCNN training throughput: forward + backward + Adam step on sparse batches (rulebooks built per batch, "
+            "SSCNN training throughput: forward + backward + AdamW step on the training loss on sparse batches (rulebooks built per batch, "
             "as in training); one JSON line.",
             specs);
   if (!args.parse(argc, argv, 3)) return 0;
@@ -147,7 +148,7 @@ int runBenchTrain(int argc, char** argv) {
   const auto items = simulate(config, static_cast<std::uint64_t>(std::max<long long>(args.getInt("images"), 1)),
                               static_cast<std::uint64_t>(args.getInt("seed")));
   if (batch < 1 || steps < 1) throw UsageError("dss bench train: --batch and --steps must be positive");
-  torch::optim::Adam optimizer(model.net->parameters(), torch::optim::AdamOptions(1e-3));
+  torch::optim::AdamW optimizer(model.net->parameters(), torch::optim::AdamWOptions(TrainOptions().learning_rate));
   std::size_t next = 0;
   double sites = 0, step_ms = 0;
   for (int step = -2; step < steps; ++step) {
@@ -165,10 +166,8 @@ int runBenchTrain(int argc, char** argv) {
     const auto t0 = Clock::now();
     optimizer.zero_grad();
     const auto out = model.net->forward(input);
-    // Heteroscedastic Gaussian NLL on the angles plus the class cross-entropy.
-    const auto nll =
-        (0.5 * (out.angles - target).pow(2) * torch::exp(-out.log_variance) + 0.5 * out.log_variance).mean();
-    const auto loss = nll + torch::cross_entropy_loss(out.class_logits, torch::tensor(classes));
+    const auto loss = trainingLoss(out, target, torch::tensor(classes), model.meta.arch.residual_scale,
+                                   TrainOptions().class_loss_weight);
     loss.backward();
     optimizer.step();
     if (step >= 0) {

@@ -1,6 +1,5 @@
 #include "digital_sun_sensor/train/trainer.h"
 
-#include <torch/nn/functional/loss.h>
 #include <torch/optim/adamw.h>
 #include <torch/serialize/input-archive.h>
 #include <torch/serialize/output-archive.h>
@@ -19,6 +18,7 @@
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sparse/threads.h"
+#include "digital_sun_sensor/train/loss.h"
 
 namespace dss {
 namespace {
@@ -216,20 +216,9 @@ struct Trainer::Impl {
     last.learning_rate = lr;
     optimizer->zero_grad();
     const auto out = model.net->forward(input);
-    // Angles by squared error, every image weighted alike (a full Gaussian NLL
-    // lets the network buy a small loss on hard images, e.g. spots cut by the
-    // edge, with a large variance, and the worst errors grow); the variance by
-    // the Gaussian NLL of the detached error, so it learns to be honest
-    // without steering the angles. Scaled to order one at the residual scale.
-    const auto error = out.angles - target;
-    const double scale = model.meta.arch.residual_scale;
-    const auto mse = error.pow(2).mean() / (scale * scale);
-    const auto nll = (0.5 * error.detach().pow(2) * torch::exp(-out.log_variance) + 0.5 * out.log_variance).mean();
-    auto loss = mse + nll;
-    if (sensor.numSubFovClasses() > 1 && options.class_loss_weight > 0) {
-      const auto ce = torch::cross_entropy_loss(out.class_logits, torch::tensor(classes));
-      loss = loss + options.class_loss_weight * ce;
-    }
+    const double class_weight = sensor.numSubFovClasses() > 1 ? options.class_loss_weight : 0.0;
+    const auto loss =
+        trainingLoss(out, target, torch::tensor(classes), model.meta.arch.residual_scale, class_weight);
     loss.backward();
     optimizer->step();
     return loss.item<double>();
