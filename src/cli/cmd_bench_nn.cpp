@@ -134,8 +134,8 @@ int runBenchTrain(int argc, char** argv) {
                                 {"images", "N", "distinct simulated images cycled through", "256", false, false},
                             });
   Args args("dss bench train",
-            "SSCNN training throughput: forward + backward + AdamW step on the training loss on sparse batches (rulebooks built per batch, "
-            "as in training); one JSON line.",
+            "SSCNN training throughput: forward + backward + AdamW step on the trainer's loss, sparse batches "
+            "(rulebooks built per batch, as in training); one JSON line.",
             specs);
   if (!args.parse(argc, argv, 3)) return 0;
   const SensorConfig config = loadSensorFromArgs(args);
