@@ -38,4 +38,20 @@ InputSpec inputSpecFor(const SensorConfig& config, double noise_sigmas) {
   return spec;
 }
 
+std::vector<ActivePixel> pixelsAboveThreshold(const cv::Mat& image, const InputSpec& spec) {
+  std::vector<ActivePixel> pixels;
+  for (int y = 0; y < image.rows; ++y) {
+    if (image.depth() == CV_8U) {
+      const auto* row = image.ptr<std::uint8_t>(y);
+      for (int x = 0; x < image.cols; ++x)
+        if (row[x] > spec.threshold_dn) pixels.push_back({y, x, row[x]});
+    } else {
+      const auto* row = image.ptr<std::uint16_t>(y);
+      for (int x = 0; x < image.cols; ++x)
+        if (row[x] > spec.threshold_dn) pixels.push_back({y, x, row[x]});
+    }
+  }
+  return pixels;
+}
+
 }  // namespace dss

@@ -8,10 +8,7 @@
 namespace dss {
 namespace {
 
-struct Pixel {
-  int y, x;
-  int dn;
-};
+using Pixel = ActivePixel;
 
 // Keeps the brightest spec.max_sites pixels (ties by position, deterministic), in row-major order.
 void limitSites(std::vector<Pixel>& pixels, const InputSpec& spec) {
@@ -24,18 +21,7 @@ void limitSites(std::vector<Pixel>& pixels, const InputSpec& spec) {
 }
 
 std::vector<Pixel> activePixels(const cv::Mat& image, const InputSpec& spec) {
-  std::vector<Pixel> pixels;
-  for (int y = 0; y < image.rows; ++y) {
-    if (image.depth() == CV_8U) {
-      const auto* row = image.ptr<std::uint8_t>(y);
-      for (int x = 0; x < image.cols; ++x)
-        if (row[x] > spec.threshold_dn) pixels.push_back({y, x, row[x]});
-    } else {
-      const auto* row = image.ptr<std::uint16_t>(y);
-      for (int x = 0; x < image.cols; ++x)
-        if (row[x] > spec.threshold_dn) pixels.push_back({y, x, row[x]});
-    }
-  }
+  std::vector<Pixel> pixels = pixelsAboveThreshold(image, spec);
   limitSites(pixels, spec);
   return pixels;
 }

@@ -15,14 +15,10 @@ void TrainingSet::add(const cv::Mat& image, double alpha_rad, double beta_rad, i
   s.alpha_rad = alpha_rad;
   s.beta_rad = beta_rad;
   s.subfov_class = subfov_class;
-  for (int y = 0; y < image.rows; ++y)
-    for (int x = 0; x < image.cols; ++x) {
-      const int v = image.depth() == CV_8U ? image.at<std::uint8_t>(y, x) : image.at<std::uint16_t>(y, x);
-      if (v > spec_.threshold_dn) {
-        s.pixels.push_back((static_cast<std::uint32_t>(y) << 16) | static_cast<std::uint32_t>(x));
-        s.dn.push_back(static_cast<std::uint16_t>(v));
-      }
-    }
+  for (const ActivePixel& p : pixelsAboveThreshold(image, spec_)) {
+    s.pixels.push_back((static_cast<std::uint32_t>(p.y) << 16) | static_cast<std::uint32_t>(p.x));
+    s.dn.push_back(static_cast<std::uint16_t>(p.dn));
+  }
   samples_.push_back(std::move(s));
 }
 

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "digital_sun_sensor/sim/sensor_config.h"
 
@@ -20,6 +21,15 @@ struct InputSpec {
   // Throws std::invalid_argument naming what does not match.
   void checkImage(const cv::Mat& image) const;
 };
+
+// A pixel that can be a site: above the spec's threshold.
+struct ActivePixel {
+  int y, x;
+  int dn;
+};
+
+// Every pixel above spec.threshold_dn, in row-major order (no max_sites limit).
+std::vector<ActivePixel> pixelsAboveThreshold(const cv::Mat& image, const InputSpec& spec);
 
 // Threshold `noise_sigmas` read + dark noise standard deviations above the
 // black level (at least 1 DN), or every nonzero pixel when the sensor
