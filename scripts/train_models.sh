@@ -2,8 +2,9 @@
 # Reproduces the shipped models in models/ and README's accuracy table: for each
 # sensor, a training bag and a fresh-seed test bag (continuous random angles over
 # the whole field of view), `dss train`, then `dss eval` of the model and of the
-# centroid baseline (calibrated on the first 1000 training images) on the same
-# test bag. Bags go to DATA_DIR (default .ws/models_data), never into git.
+# centroid baseline (calibrated on the first 1000 training images, shipped as
+# models/<sensor>.calib.yaml: calibration_node's fallback) on the same test
+# bag. Bags go to DATA_DIR (default .ws/models_data), never into git.
 #   scripts/train_models.sh [SENSOR...]     (default: thesis_sa thesis_ma wide_ma)
 # Bags and finished models already present are reused; an interrupted training
 # resumes from its checkpoint. Results: DATA_DIR/<sensor>.*.json.
@@ -29,7 +30,7 @@ for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
   for s in $sensor; do
     read -r count train_seed test_seed epochs <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
-    model="$ROOT/models/$s.dssmodel" ckpt="$DATA/$s.ckpt"
+    model="$ROOT/models/$s.dssmodel" calib="$ROOT/models/$s.calib.yaml" ckpt="$DATA/$s.ckpt"
     [ -f "$train" ] || "$DSS" generate --sensor "$cfg" --count "$count" --seed "$train_seed" --out "$train"
     [ -f "$test" ] || "$DSS" generate --sensor "$cfg" --count 10000 --seed "$test_seed" --out "$test"
     if [ ! -f "$model" ]; then
@@ -39,8 +40,8 @@ for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
         | tee "$DATA/$s.train.json"
     fi
     "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$s.sscnn.csv" | tee "$DATA/$s.sscnn.json"
-    "$DSS" calibrate --data "$train" --max-images 1000 --out "$DATA/$s.calib.yaml" > "$DATA/$s.calibrate.json"
-    "$DSS" eval --data "$test" --estimator "centroid:$DATA/$s.calib.yaml" --csv "$DATA/$s.centroid.csv" \
+    "$DSS" calibrate --data "$train" --max-images 1000 --out "$calib" > "$DATA/$s.calibrate.json"
+    "$DSS" eval --data "$test" --estimator "centroid:$calib" --csv "$DATA/$s.centroid.csv" \
       | tee "$DATA/$s.centroid.json"
   done
 done

@@ -8,6 +8,8 @@
 
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/eval/uncertainty.h"
+#include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/train/trainer.h"
 
 namespace dss {
@@ -84,6 +86,21 @@ TEST(Train, ValidationErrorFallsWellBelowUntrained) {
   const std::string bytes = readFile(path);
   EXPECT_NE(bytes.find("best_epoch"), std::string::npos);
   EXPECT_NE(bytes.find("tiny set"), std::string::npos);
+  EXPECT_NE(bytes.find("sigma_scale_alpha"), std::string::npos);
+
+  // Its predicted sigma was rescaled on the validation images: 68 % of their
+  // errors now lie within 1 sigma (the factor really reached the network).
+  const Model saved = loadModel(path);
+  std::vector<const SparseSample*> samples;
+  for (const auto& s : validation.samples()) samples.push_back(&s);
+  const std::vector<Prediction> predictions = saved.predictSamples(samples);
+  std::vector<ErrorAndSigma> za, zb;
+  for (std::size_t k = 0; k < samples.size(); ++k) {
+    za.push_back({predictions[k].alpha_rad - samples[k]->alpha_rad, std::sqrt(predictions[k].alpha_variance_rad2)});
+    zb.push_back({predictions[k].beta_rad - samples[k]->beta_rad, std::sqrt(predictions[k].beta_variance_rad2)});
+  }
+  EXPECT_NEAR(measureCoverage(za).within[0], 0.683, 0.03);
+  EXPECT_NEAR(measureCoverage(zb).within[0], 0.683, 0.03);
   std::remove(path.c_str());
 }
 

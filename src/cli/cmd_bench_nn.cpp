@@ -7,6 +7,7 @@
 #include <numeric>
 
 #include "commands.h"
+#include "digital_sun_sensor/common/statistics.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
@@ -21,15 +22,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const double pos = q * static_cast<double>(v.size() - 1);
-  const auto lo = static_cast<std::size_t>(pos);
-  const auto hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (pos - static_cast<double>(lo)) * (v[hi] - v[lo]);
-}
 
 std::vector<OptionSpec> nnBenchOptions(const std::string& blas_threads) {
   auto specs = sensorOptions();

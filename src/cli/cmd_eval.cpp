@@ -6,24 +6,14 @@
 
 #include "commands.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
-#include "digital_sun_sensor/baseline/centroid_estimator.h"
 #include "digital_sun_sensor/eval/crlb.h"
 #include "digital_sun_sensor/eval/evaluation.h"
-#include "digital_sun_sensor/model/sscnn_estimator.h"
+#include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/sparse/threads.h"
 #include "progress.h"
 
 namespace dss::cli {
 namespace {
-
-std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec) {
-  const auto colon = spec.find(':');
-  const std::string kind = spec.substr(0, colon), path = colon == std::string::npos ? "" : spec.substr(colon + 1);
-  if (path.empty() || (kind != "centroid" && kind != "sscnn"))
-    throw UsageError("dss eval: --estimator must be sscnn:MODEL or centroid:CALIB, got '" + spec + "'");
-  if (kind == "centroid") return std::make_unique<CentroidEstimator>(loadCalibration(path));
-  return std::make_unique<SscnnEstimator>(path);
-}
 
 // Bounds for up to `max_samples` evenly spaced valid estimates, on `threads` threads.
 void computeBounds(std::vector<EvalRecord>& records, const SensorConfig& config, std::size_t max_samples, int threads) {
@@ -82,7 +72,12 @@ int runEval(int argc, char** argv) {
   if (!args.parse(argc, argv, 2)) return 0;
   sparse::configureThreads(1, 1);  // per-image inference is fastest single-threaded (README)
   const DatasetBagReader reader(args.all("data"));
-  const std::unique_ptr<SunEstimator> estimator = makeEstimator(args.get("estimator"));
+  std::unique_ptr<SunEstimator> estimator;
+  try {
+    estimator = makeEstimator(args.get("estimator"));
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(std::string("dss eval: --estimator: ") + e.what());
+  }
   const SensorConfig& sensor = estimator->sensor();
   const auto batch_size = static_cast<std::size_t>(std::max(1LL, args.getInt("batch")));
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));

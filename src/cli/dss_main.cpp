@@ -14,6 +14,7 @@ const char* kUsage =
     "  render     render one image for a sun direction into a PNG\n"
     "  calibrate  fit the conventional baseline (centroid + calibration model) to a labelled bag\n"
     "  train      train an SSCNN model on labelled bags (checkpoints, --resume)\n"
+    "  calibrate-sigma  refit the level of a model's predicted sigma on held-out labelled images\n"
     "  eval       evaluate an estimator (sscnn:MODEL | centroid:CALIB) on a labelled bag: one JSON line\n"
     "  bench      benchmarks printing one JSON line (bench sim|infer|train)\n";
 
@@ -27,6 +28,7 @@ int main(int argc, char** argv) {
     if (command == "render") return dss::cli::runRender(argc, argv);
     if (command == "calibrate") return dss::cli::runCalibrate(argc, argv);
     if (command == "train") return dss::cli::runTrain(argc, argv);
+    if (command == "calibrate-sigma") return dss::cli::runCalibrateSigma(argc, argv);
     if (command == "eval") return dss::cli::runEval(argc, argv);
     if (command == "--help" || command == "-h" || command == "help") {
       std::cout << kUsage;

@@ -56,6 +56,7 @@ EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string&
   s.estimator = estimator;
   s.n = records.size();
   std::vector<double> ea, eb;
+  std::vector<ErrorAndSigma> za, zb;
   std::size_t class_known = 0, class_right = 0;
   double err_sq = 0.0, bound_sq = 0.0, readout_err_sq = 0.0, readout_bound_sq = 0.0;
   std::size_t readout_samples = 0;
@@ -66,6 +67,8 @@ EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string&
                  b = std::abs(r.estimate.beta_rad - r.beta_true_rad);
     ea.push_back(a * kRadToDeg);
     eb.push_back(b * kRadToDeg);
+    za.push_back({a, std::sqrt(r.estimate.covariance[0])});
+    zb.push_back({b, std::sqrt(r.estimate.covariance[3])});
     if (r.subfov_true >= 0) {
       ++class_known;
       class_right += r.estimate.subfov_class == r.subfov_true;
@@ -83,6 +86,8 @@ EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string&
   }
   s.alpha = axisStats(ea);
   s.beta = axisStats(eb);
+  s.alpha_coverage = measureCoverage(za);
+  s.beta_coverage = measureCoverage(zb);
   s.valid_rate = s.n ? static_cast<double>(s.valid) / s.n : 0.0;
   if (class_known) s.subfov_accuracy = static_cast<double>(class_right) / class_known;
   s.ms_per_image = s.n ? total_ms / s.n : 0.0;
@@ -111,7 +116,13 @@ std::string EvalSummary::toJson() const {
      << ", \"ms_per_image\": " << number(ms_per_image) << ", \"crlb_ratio\": " << number(crlb_ratio)
      << ", \"crlb_rms_deg\": " << number(crlb_rms_deg) << ", \"crlb_samples\": " << crlb_samples
      << ", \"readout_crlb_ratio\": " << number(readout_crlb_ratio)
-     << ", \"readout_crlb_rms_deg\": " << number(readout_crlb_rms_deg) << "}";
+     << ", \"readout_crlb_rms_deg\": " << number(readout_crlb_rms_deg);
+  const std::pair<const char*, const Coverage*> coverages[] = {{"alpha", &alpha_coverage}, {"beta", &beta_coverage}};
+  for (const auto& [name, c] : coverages) {
+    for (int k = 0; k < 3; ++k)
+      os << ", \"" << name << "_within_" << k + 1 << "sigma\": " << number(c->count ? c->within[k] : NAN);
+  }
+  os << "}";
   return os.str();
 }
 

@@ -151,41 +151,11 @@ void checkSensorCompatible(const ModelMetadata& meta, const SensorConfig& config
   } catch (const ConfigError& e) {
     throw ModelError(e.what());
   }
-  auto mismatch = [&](const std::string& key, auto model_value, auto sensor_value) {
-    std::ostringstream o;
-    o << origin << ": the model was made for sensor '" << trained.name << "' with " << key << " = " << model_value
-      << ", but sensor '" << config.name << "' has " << sensor_value;
-    throw ModelError(o.str());
-  };
-  auto differs = [](double a, double b, double rel) {
-    return std::abs(a - b) > rel * std::max(std::abs(a), std::abs(b));
-  };
-  if (trained.detector.width_px != config.detector.width_px)
-    mismatch("detector.width_px", trained.detector.width_px, config.detector.width_px);
-  if (trained.detector.height_px != config.detector.height_px)
-    mismatch("detector.height_px", trained.detector.height_px, config.detector.height_px);
-  if (differs(trained.detector.pitch_um, config.detector.pitch_um, 1e-6))
-    mismatch("detector.pitch_um", trained.detector.pitch_um, config.detector.pitch_um);
-  if (trained.noise.bit_depth != config.noise.bit_depth)
-    mismatch("noise.bit_depth", trained.noise.bit_depth, config.noise.bit_depth);
-  if (trained.threshold.enabled != config.threshold.enabled)
-    mismatch("threshold.enabled", trained.threshold.enabled, config.threshold.enabled);
-  // Within as-built tolerances the same design; beyond 1% another sensor.
-  if (differs(trained.mask.height_mm, config.mask.height_mm, 0.01))
-    mismatch("mask.height_mm", trained.mask.height_mm, config.mask.height_mm);
-  if (trained.mask.apertures.size() != config.mask.apertures.size())
-    mismatch("the number of apertures", trained.mask.apertures.size(), config.mask.apertures.size());
-  for (std::size_t i = 0; i < config.mask.apertures.size(); ++i) {
-    const auto &a = trained.mask.apertures[i], &b = config.mask.apertures[i];
-    if (std::hypot(a.x_um - b.x_um, a.y_um - b.y_um) > 1.0)
-      mismatch("aperture " + std::to_string(i) + " position (um)",
-               "(" + std::to_string(a.x_um) + ", " + std::to_string(a.y_um) + ")",
-               "(" + std::to_string(b.x_um) + ", " + std::to_string(b.y_um) + ")");
-  }
-  if (trained.cover_glass.enabled != config.cover_glass.enabled)
-    mismatch("cover_glass.enabled", trained.cover_glass.enabled, config.cover_glass.enabled);
-  if (trained.numSubFovClasses() != config.numSubFovClasses() || meta.arch.num_classes != config.numSubFovClasses())
-    mismatch("sub-FOV classes", meta.arch.num_classes, config.numSubFovClasses());
+  const std::string mismatch = sensorDesignMismatch(trained, config);
+  if (!mismatch.empty()) throw ModelError(origin + ": the model was made for " + mismatch);
+  if (meta.arch.num_classes != config.numSubFovClasses())
+    throw ModelError(origin + ": the model has " + std::to_string(meta.arch.num_classes) + " sub-FOV classes, sensor '" +
+                     config.name + "' " + std::to_string(config.numSubFovClasses()));
 }
 
 }  // namespace dss

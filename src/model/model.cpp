@@ -170,4 +170,32 @@ std::vector<Prediction> Model::predict(const std::vector<cv::Mat>& images) const
   return decode(net->forward(input), *input.sites);
 }
 
+std::vector<Prediction> Model::predictSamples(const std::vector<const SparseSample*>& samples) const {
+  torch::NoGradGuard no_grad;
+  std::vector<Prediction> out;
+  out.reserve(samples.size());
+  for (std::size_t first = 0; first < samples.size(); first += 64) {
+    const std::vector<const SparseSample*> batch(samples.begin() + first,
+                                                 samples.begin() + std::min(samples.size(), first + 64));
+    const auto input = encodeSamples(batch, meta.input);
+    const std::vector<Prediction> p = decode(net->forward(input), *input.sites);
+    out.insert(out.end(), p.begin(), p.end());
+  }
+  return out;
+}
+
+void Model::scaleSigma(double alpha_factor, double beta_factor) {
+  if (!(alpha_factor > 0.0 && beta_factor > 0.0 && std::isfinite(alpha_factor) && std::isfinite(beta_factor)))
+    throw std::invalid_argument("scaleSigma: factors must be finite and positive");
+  torch::NoGradGuard no_grad;
+  for (auto& p : net->named_parameters()) {
+    if (p.key() != "variance.bias") continue;
+    // log variance + 2 log f = log (f sigma)^2
+    p.value()[0] += 2.0 * std::log(alpha_factor);
+    p.value()[1] += 2.0 * std::log(beta_factor);
+    return;
+  }
+  throw ModelError("scaleSigma: the network has no variance.bias parameter");
+}
+
 }  // namespace dss

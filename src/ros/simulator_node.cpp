@@ -27,7 +27,10 @@ double triangle(double x) {
 
 }  // namespace
 
-SimulatorNode::SimulatorNode(ros::NodeHandle nh, ros::NodeHandle pnh) : nh_(nh), pnh_(pnh) {
+// The updater is named after the private namespace, which is the node's name
+// for both the node and the nodelet (whose process is the manager).
+SimulatorNode::SimulatorNode(ros::NodeHandle nh, ros::NodeHandle pnh)
+    : nh_(nh), pnh_(pnh), updater_(nh, pnh, pnh.getNamespace()) {
   const std::string sensor = pnh_.param<std::string>("sensor_config", "thesis_sa");
   std::vector<std::string> overrides = pnh_.param<std::vector<std::string>>("config_overrides", {});
   SensorConfig config = loadSensorConfig(resolveSensorConfigPath(sensor), overrides);
@@ -166,9 +169,10 @@ void SimulatorNode::onTimer(const ros::TimerEvent&) {
   header.stamp = stamp;
   header.frame_id = frame_id_;
   header.seq = static_cast<std::uint32_t>(frame_count_);
-  image_pub_.publish(toImageMsg(image, header));
-  const SunAngles truth_msg = toTruthMsg(truth, renderer_->config(), header);
-  last_in_fov_ = truth_msg.valid;
+  // Shared pointers: a nodelet in the same manager receives them without a copy.
+  image_pub_.publish(boost::make_shared<sensor_msgs::Image>(toImageMsg(image, header)));
+  const auto truth_msg = boost::make_shared<SunAngles>(toTruthMsg(truth, renderer_->config(), header));
+  last_in_fov_ = truth_msg->valid;
   truth_pub_.publish(truth_msg);
   if (publish_spots_) spots_pub_.publish(toSpotsMsg(truth, header));
   ++frame_count_;

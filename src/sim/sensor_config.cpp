@@ -453,3 +453,44 @@ std::string toYaml(const SensorConfig& c) {
 }
 
 }  // namespace dss
+
+namespace dss {
+
+std::string sensorDesignMismatch(const SensorConfig& made_for, const SensorConfig& config) {
+  std::ostringstream o;
+  auto mismatch = [&](const std::string& key, auto made_for_value, auto config_value) {
+    o << "sensor '" << made_for.name << "' with " << key << " = " << made_for_value << ", but sensor '" << config.name
+      << "' has " << config_value;
+    return o.str();
+  };
+  auto differs = [](double a, double b, double rel) { return std::abs(a - b) > rel * std::max(std::abs(a), std::abs(b)); };
+  if (made_for.detector.width_px != config.detector.width_px)
+    return mismatch("detector.width_px", made_for.detector.width_px, config.detector.width_px);
+  if (made_for.detector.height_px != config.detector.height_px)
+    return mismatch("detector.height_px", made_for.detector.height_px, config.detector.height_px);
+  if (differs(made_for.detector.pitch_um, config.detector.pitch_um, 1e-6))
+    return mismatch("detector.pitch_um", made_for.detector.pitch_um, config.detector.pitch_um);
+  if (made_for.noise.bit_depth != config.noise.bit_depth)
+    return mismatch("noise.bit_depth", made_for.noise.bit_depth, config.noise.bit_depth);
+  if (made_for.threshold.enabled != config.threshold.enabled)
+    return mismatch("threshold.enabled", made_for.threshold.enabled, config.threshold.enabled);
+  // Within as-built tolerances the same design; beyond 1% another sensor.
+  if (differs(made_for.mask.height_mm, config.mask.height_mm, 0.01))
+    return mismatch("mask.height_mm", made_for.mask.height_mm, config.mask.height_mm);
+  if (made_for.mask.apertures.size() != config.mask.apertures.size())
+    return mismatch("the number of apertures", made_for.mask.apertures.size(), config.mask.apertures.size());
+  for (std::size_t i = 0; i < config.mask.apertures.size(); ++i) {
+    const auto &a = made_for.mask.apertures[i], &b = config.mask.apertures[i];
+    if (std::hypot(a.x_um - b.x_um, a.y_um - b.y_um) > 1.0)
+      return mismatch("aperture " + std::to_string(i) + " position (um)",
+                      "(" + std::to_string(a.x_um) + ", " + std::to_string(a.y_um) + ")",
+                      "(" + std::to_string(b.x_um) + ", " + std::to_string(b.y_um) + ")");
+  }
+  if (made_for.cover_glass.enabled != config.cover_glass.enabled)
+    return mismatch("cover_glass.enabled", made_for.cover_glass.enabled, config.cover_glass.enabled);
+  if (made_for.numSubFovClasses() != config.numSubFovClasses())
+    return mismatch("sub-FOV classes", made_for.numSubFovClasses(), config.numSubFovClasses());
+  return "";
+}
+
+}  // namespace dss

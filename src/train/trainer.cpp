@@ -19,6 +19,7 @@
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/loss.h"
+#include "digital_sun_sensor/train/sigma_calibration.h"
 
 namespace dss {
 namespace {
@@ -231,29 +232,21 @@ struct Trainer::Impl {
     torch::NoGradGuard no_grad;
     const std::size_t n = std::min(validation.size(), options.validation_max);
     const double stride = static_cast<double>(validation.size()) / static_cast<double>(n);
+    std::vector<const SparseSample*> picked;
+    for (std::size_t i = 0; i < n; ++i)
+      picked.push_back(&validation.samples()[static_cast<std::size_t>(static_cast<double>(i) * stride)]);
+    const std::vector<Prediction> predictions = model.predictSamples(picked);
     double sum_a = 0, sum_b = 0, max_a = 0, max_b = 0;
     std::size_t correct = 0;
-    std::vector<const SparseSample*> batch;
-    auto flush = [&] {
-      if (batch.empty()) return;
-      const auto input = encodeSamples(batch, validation.spec());
-      const auto predictions = model.decode(model.net->forward(input), *input.sites);
-      for (std::size_t k = 0; k < batch.size(); ++k) {
-        const double ea = std::abs(predictions[k].alpha_rad - batch[k]->alpha_rad) * kRadToDeg;
-        const double eb = std::abs(predictions[k].beta_rad - batch[k]->beta_rad) * kRadToDeg;
-        sum_a += ea;
-        sum_b += eb;
-        max_a = std::max(max_a, ea);
-        max_b = std::max(max_b, eb);
-        correct += predictions[k].subfov_class == std::max(0, batch[k]->subfov_class);
-      }
-      batch.clear();
-    };
-    for (std::size_t i = 0; i < n; ++i) {
-      batch.push_back(&validation.samples()[static_cast<std::size_t>(static_cast<double>(i) * stride)]);
-      if (batch.size() == 64) flush();
+    for (std::size_t k = 0; k < picked.size(); ++k) {
+      const double ea = std::abs(predictions[k].alpha_rad - picked[k]->alpha_rad) * kRadToDeg;
+      const double eb = std::abs(predictions[k].beta_rad - picked[k]->beta_rad) * kRadToDeg;
+      sum_a += ea;
+      sum_b += eb;
+      max_a = std::max(max_a, ea);
+      max_b = std::max(max_b, eb);
+      correct += predictions[k].subfov_class == std::max(0, picked[k]->subfov_class);
     }
-    flush();
     model.net->train();
     out.val_alpha_mean_deg = sum_a / static_cast<double>(n);
     out.val_beta_mean_deg = sum_b / static_cast<double>(n);
@@ -501,6 +494,9 @@ void Trainer::saveModel(const std::string& path, const std::string& data_descrip
     YAML::Node metrics = YAML::Load(best.meta.metrics_yaml);
     metrics["best_epoch"] = m.best_epoch;
     best.meta.metrics_yaml = YAML::Dump(metrics);
+    // The level of the predicted sigma, fitted on the held-out images (on
+    // this copy: the live network keeps training if the run goes on).
+    calibrateSigma(best, m.validation, m.options.validation_max);
     out = best;
   }
   ::dss::saveModel(out, path);

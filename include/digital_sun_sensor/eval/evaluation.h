@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "digital_sun_sensor/common/sun_estimate.h"
+#include "digital_sun_sensor/eval/uncertainty.h"
 
 namespace dss {
 
@@ -47,6 +48,8 @@ struct EvalSummary {
   // The same against the bound of the readout as configured.
   double readout_crlb_ratio = std::numeric_limits<double>::quiet_NaN();
   double readout_crlb_rms_deg = std::numeric_limits<double>::quiet_NaN();
+  // Fraction of valid estimates whose error lies within 1 / 2 / 3 predicted sigma.
+  Coverage alpha_coverage, beta_coverage;
 
   std::string toJson() const;  // one line, DESIGN section 7 keys first
 };

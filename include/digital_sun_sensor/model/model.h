@@ -16,6 +16,8 @@
 
 namespace dss {
 
+struct SparseSample;
+
 struct Prediction {
   double alpha_rad = 0.0;
   double beta_rad = 0.0;
@@ -32,7 +34,13 @@ struct Model {
 
   // Inference on a batch of sensor images (eval mode, no autograd).
   std::vector<Prediction> predict(const std::vector<cv::Mat>& images) const;
+  // The same for samples already reduced to their sites (training data), in
+  // batches of 64; no autograd, and the caller chooses train or eval mode.
+  std::vector<Prediction> predictSamples(const std::vector<const SparseSample*>& samples) const;
   std::vector<Prediction> decode(const SscnnOutput& out, const sparse::SiteSet& sites) const;
+  // Multiplies the predicted standard deviations by these factors (through
+  // the variance head's bias; train/sigma_calibration fits them).
+  void scaleSigma(double alpha_factor, double beta_factor);
 };
 
 // A freshly initialised model for a sensor; seeds torch's generator with `seed`.

@@ -174,6 +174,11 @@ SensorConfig loadSensorConfig(const std::string& path,
 SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& origin,
                                const std::vector<std::string>& overrides = {});
 
+// Empty when a model or calibration made for `made_for` fits images of
+// `config` (same detector, readout and mask layout, within as-built
+// tolerances); else "sensor 'A' with KEY = a, but sensor 'B' has b".
+std::string sensorDesignMismatch(const SensorConfig& made_for, const SensorConfig& config);
+
 // Canonical YAML of a config, for provenance (model metadata, bag headers).
 std::string toYaml(const SensorConfig& config);
 

@@ -1,0 +1,31 @@
+// Builds the sun estimators the front ends name (dss eval, calibration_node):
+// the SSCNN from a model file, the centroid baseline from a calibration file,
+// and the estimator node's choice of one with the other as fallback.
+// Torch-free header.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "digital_sun_sensor/common/sun_estimate.h"
+
+namespace dss {
+
+// "sscnn:MODEL" or "centroid:CALIB". Throws std::invalid_argument for a
+// malformed spec, ModelError / CalibrationError for a bad file; with
+// `expected`, also when the file was made for another sensor design.
+std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec, const SensorConfig* expected = nullptr);
+
+struct EstimatorChoice {
+  std::unique_ptr<SunEstimator> estimator;  // null when neither file could be used
+  bool is_fallback = false;                 // the centroid baseline stands in for the SSCNN
+  std::string problem;                      // why the SSCNN (and the fallback) was not used; empty if it was
+};
+
+// The SSCNN from `model_path` when it loads and fits `sensor`; otherwise the
+// centroid baseline from `calibration_path` (when not empty). Never throws for
+// a missing or bad file: the reason is in `problem`.
+EstimatorChoice chooseEstimator(const std::string& model_path, const std::string& calibration_path,
+                                const SensorConfig& sensor);
+
+}  // namespace dss

@@ -1,0 +1,47 @@
+// Checks around any sun estimator, so that a consumer never gets an estimate
+// from an image it should not trust: the image is screened before estimation
+// (saturation) and each estimate after it (predicted uncertainty beyond the
+// training envelope, angles beyond the field of view). Failed checks give
+// valid = false with the reason in status.
+#pragma once
+
+#include <memory>
+
+#include "digital_sun_sensor/common/sun_estimate.h"
+
+namespace dss {
+
+struct ScreenOptions {
+  // More pixels than this fraction of the detector at the top code: "saturated".
+  double max_saturated_fraction = 0.01;
+  // A predicted 1-sigma (either axis) above this: "out_of_distribution". The
+  // SSCNN's variance head grows on inputs unlike its training images.
+  double max_sigma_deg = 0.01;
+  // An estimate further than this beyond the config's field of view: "outside_fov".
+  double fov_margin_deg = 0.25;
+
+  // Throws std::invalid_argument naming the first bad field.
+  void validate() const;
+};
+
+// "saturated" or empty; `max_code` is the sensor's top digital number.
+std::string screenImage(const cv::Mat& image, int max_code, const ScreenOptions& options);
+
+// Turns a valid estimate invalid when it fails a check.
+void screenEstimate(SunEstimate* estimate, const SensorConfig& sensor, const ScreenOptions& options);
+
+class ScreenedEstimator : public SunEstimator {
+ public:
+  ScreenedEstimator(std::unique_ptr<SunEstimator> inner, ScreenOptions options);
+
+  std::string source() const override { return inner_->source(); }
+  const SensorConfig& sensor() const override { return inner_->sensor(); }
+  std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
+
+ private:
+  std::unique_ptr<SunEstimator> inner_;
+  ScreenOptions options_;
+  int max_code_;
+};
+
+}  // namespace dss

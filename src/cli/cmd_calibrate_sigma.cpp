@@ -1,0 +1,53 @@
+// dss calibrate-sigma: refits the level of a model's predicted uncertainty on
+// labelled held-out images (src/train/sigma_calibration) and writes the model.
+#include <iostream>
+
+#include "commands.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/ros/dataset_source.h"
+#include "digital_sun_sensor/sparse/threads.h"
+#include "digital_sun_sensor/train/sigma_calibration.h"
+#include "progress.h"
+
+namespace dss::cli {
+
+int runCalibrateSigma(int argc, char** argv) {
+  Args args("dss calibrate-sigma",
+            "Scales a model's predicted sigma per axis so that 68.27 % of the errors on the given labelled images lie "
+            "within 1 sigma (use images the model was not trained on); writes the model atomically and prints one JSON "
+            "line with the factors and the 1/2/3-sigma coverage before and after.",
+            {
+                {"model", "MODEL", "model file to calibrate", "", true, false},
+                {"data", "BAG", "labelled dataset bag(s) of the model's sensor", "", true, true},
+                {"out", "MODEL", "model file to write (may be --model)", "", true, false},
+                {"max-images", "N", "use at most N images", "5000", false, false},
+            });
+  if (!args.parse(argc, argv, 2)) return 0;
+  sparse::configureThreads(1, 2);
+  Model model = loadModel(args.get("model"));
+  const SensorConfig sensor = parseSensorConfig(model.meta.sensor_yaml, args.get("model") + " (sensor)");
+  const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
+  std::unique_ptr<Progress> reading;
+  const TrainingData data =
+      loadTrainingData(args.all("data"), sensor, {}, max_images, [&](std::uint64_t done, std::uint64_t total) {
+        if (!reading) reading = std::make_unique<Progress>("calibrate-sigma: reading bags", total);
+        reading->update(done);
+      });
+  if (reading) reading->finish();
+  std::cerr << "read " << describe(data) << "\n";
+  const SigmaCalibration c = calibrateSigma(model, data.samples, max_images ? max_images : data.samples.size());
+  saveModel(model, args.get("out"));
+  std::cerr << "wrote " << args.get("out") << "\n";
+  auto coverage = [](const char* name, const Coverage& cov) {
+    std::ostringstream o;
+    for (int k = 0; k < 3; ++k) o << ", \"" << name << "_within_" << k + 1 << "sigma\": " << cov.within[k];
+    return o.str();
+  };
+  std::cout << "{\"command\": \"calibrate-sigma\", \"model\": \"" << args.get("out") << "\", \"samples\": " << c.samples
+            << ", \"scale_alpha\": " << c.scale_alpha << ", \"scale_beta\": " << c.scale_beta
+            << coverage("before_alpha", c.alpha_before) << coverage("before_beta", c.beta_before)
+            << coverage("after_alpha", c.alpha_after) << coverage("after_beta", c.beta_after) << "}" << std::endl;
+  return 0;
+}
+
+}  // namespace dss::cli

@@ -1,0 +1,58 @@
+#include "digital_sun_sensor/estimate/estimator_factory.h"
+
+#include <stdexcept>
+
+#include "digital_sun_sensor/baseline/calibration.h"
+#include "digital_sun_sensor/baseline/centroid_estimator.h"
+#include "digital_sun_sensor/model/sscnn_estimator.h"
+
+namespace dss {
+namespace {
+
+std::unique_ptr<SunEstimator> makeCentroid(const std::string& path, const SensorConfig* expected) {
+  Calibration calibration = loadCalibration(path);
+  if (expected) {
+    const std::string mismatch = sensorDesignMismatch(calibration.sensor, *expected);
+    if (!mismatch.empty()) throw CalibrationError(path + ": the calibration was made for " + mismatch);
+  }
+  return std::make_unique<CentroidEstimator>(std::move(calibration));
+}
+
+}  // namespace
+
+std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec, const SensorConfig* expected) {
+  const auto colon = spec.find(':');
+  const std::string kind = spec.substr(0, colon), path = colon == std::string::npos ? "" : spec.substr(colon + 1);
+  if (path.empty() || (kind != "centroid" && kind != "sscnn"))
+    throw std::invalid_argument("estimator must be sscnn:MODEL or centroid:CALIB, got '" + spec + "'");
+  if (kind == "centroid") return makeCentroid(path, expected);
+  return std::make_unique<SscnnEstimator>(path, expected);
+}
+
+EstimatorChoice chooseEstimator(const std::string& model_path, const std::string& calibration_path,
+                                const SensorConfig& sensor) {
+  EstimatorChoice choice;
+  if (model_path.empty()) {
+    choice.problem = "no model file given";
+  } else {
+    try {
+      choice.estimator = std::make_unique<SscnnEstimator>(model_path, &sensor);
+      return choice;
+    } catch (const std::exception& e) {
+      choice.problem = e.what();
+    }
+  }
+  if (calibration_path.empty()) {
+    choice.problem += "; no calibration file for the centroid fallback";
+    return choice;
+  }
+  try {
+    choice.estimator = makeCentroid(calibration_path, &sensor);
+    choice.is_fallback = true;
+  } catch (const std::exception& e) {
+    choice.problem += std::string("; centroid fallback failed too: ") + e.what();
+  }
+  return choice;
+}
+
+}  // namespace dss

@@ -1,0 +1,68 @@
+#include "digital_sun_sensor/estimate/screened_estimator.h"
+
+#include <cmath>
+#include <stdexcept>
+
+#include "digital_sun_sensor/model/input_spec.h"
+
+namespace dss {
+
+void ScreenOptions::validate() const {
+  if (!(max_saturated_fraction > 0.0 && max_saturated_fraction <= 1.0))
+    throw std::invalid_argument("max_saturated_fraction must be in (0, 1]");
+  if (!(max_sigma_deg > 0.0)) throw std::invalid_argument("max_sigma_deg must be > 0");
+  if (!(fov_margin_deg >= 0.0)) throw std::invalid_argument("fov_margin_deg must be >= 0");
+}
+
+std::string screenImage(const cv::Mat& image, int max_code, const ScreenOptions& options) {
+  if (image.empty() || image.channels() != 1) return "";  // the estimator names what is wrong
+  const double saturated = cv::countNonZero(image >= max_code);
+  return saturated > options.max_saturated_fraction * image.total() ? "saturated" : "";
+}
+
+void screenEstimate(SunEstimate* estimate, const SensorConfig& sensor, const ScreenOptions& options) {
+  if (!estimate->valid) return;
+  constexpr double kDeg = M_PI / 180.0;
+  const double max_var = std::pow(options.max_sigma_deg * kDeg, 2);
+  const double var_a = estimate->covariance[0], var_b = estimate->covariance[3];
+  if (!std::isfinite(estimate->alpha_rad) || !std::isfinite(estimate->beta_rad)) {
+    estimate->valid = false;
+    estimate->status = "not_finite";
+  } else if (!(var_a <= max_var && var_b <= max_var)) {  // also catches NaN
+    estimate->valid = false;
+    estimate->status = "out_of_distribution";
+  } else if (std::abs(estimate->alpha_rad) > (sensor.fov.alpha_max_deg + options.fov_margin_deg) * kDeg ||
+             std::abs(estimate->beta_rad) > (sensor.fov.beta_max_deg + options.fov_margin_deg) * kDeg) {
+    estimate->valid = false;
+    estimate->status = "outside_fov";
+  }
+}
+
+ScreenedEstimator::ScreenedEstimator(std::unique_ptr<SunEstimator> inner, ScreenOptions options)
+    : inner_(std::move(inner)), options_(options) {
+  if (!inner_) throw std::invalid_argument("ScreenedEstimator: no estimator");
+  options_.validate();
+  max_code_ = inputSpecFor(inner_->sensor()).max_code;
+}
+
+std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>& images) {
+  std::vector<SunEstimate> out(images.size());
+  std::vector<cv::Mat> passed;
+  std::vector<std::size_t> where;
+  for (std::size_t i = 0; i < images.size(); ++i) {
+    out[i].status = screenImage(images[i], max_code_, options_);
+    if (out[i].status.empty()) {
+      passed.push_back(images[i]);
+      where.push_back(i);
+    }
+  }
+  if (passed.empty()) return out;
+  std::vector<SunEstimate> estimates = inner_->estimate(passed);
+  for (std::size_t k = 0; k < estimates.size(); ++k) {
+    screenEstimate(&estimates[k], inner_->sensor(), options_);
+    out[where[k]] = std::move(estimates[k]);
+  }
+  return out;
+}
+
+}  // namespace dss

@@ -1,0 +1,300 @@
+#include "digital_sun_sensor/ros/calibration_node.h"
+
+#include <geometry_msgs/TransformStamped.h>
+#include <geometry_msgs/Vector3Stamped.h>
+#include <nodelet/nodelet.h>
+#include <pluginlib/class_list_macros.hpp>
+#include <ros/package.h>
+
+#include <Eigen/Geometry>
+#include <chrono>
+#include <fstream>
+#include <sstream>
+
+#include "digital_sun_sensor/common/statistics.h"
+#include "digital_sun_sensor/estimate/estimator_factory.h"
+#include "digital_sun_sensor/estimate/screened_estimator.h"
+#include "digital_sun_sensor/ros/conversions.h"
+#include "digital_sun_sensor/ros/node_params.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sparse/threads.h"
+
+namespace dss {
+namespace {
+
+constexpr std::size_t kLatencyWindow = 2000;  // recent images kept for the latency percentiles
+
+bool fileExists(const std::string& path) { return std::ifstream(path).good(); }
+
+// "" means the shipped file models/<sensor><suffix> (when it exists), "none"
+// means no file; anything else is a path.
+std::string resolveModelFile(const std::string& value, const std::string& sensor, const std::string& suffix,
+                             bool must_exist) {
+  if (value == "none") return "";
+  if (!value.empty()) return value;
+  const std::string shipped = ros::package::getPath("digital_sun_sensor") + "/models/" + sensor + suffix;
+  return (!must_exist || fileExists(shipped)) ? shipped : "";
+}
+
+double residentMemoryMiB() {
+  std::ifstream status("/proc/self/status");
+  for (std::string line; std::getline(status, line);) {
+    if (line.rfind("VmRSS:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;  // kB
+  }
+  return 0.0;
+}
+
+}  // namespace
+
+// The updater is named after the private namespace, which is the node's name
+// for both the node and the nodelet (whose process is the manager).
+CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
+    : nh_(nh), pnh_(pnh), updater_(nh, pnh, pnh.getNamespace()) {
+  const std::string sensor_param = pnh_.param<std::string>("sensor_config", "thesis_sa");
+  const SensorConfig sensor =
+      loadSensorConfig(resolveSensorConfigPath(sensor_param), stringListParam(pnh_, "config_overrides"));
+  sensor_name_ = sensor.name;
+  model_path_ = resolveModelFile(pnh_.param<std::string>("model", ""), sensor.name, ".dssmodel", false);
+  calibration_path_ = resolveModelFile(pnh_.param<std::string>("calibration", ""), sensor.name, ".calib.yaml", true);
+  default_frame_id_ = pnh_.param<std::string>("frame_id", "sun_sensor_link");
+  sun_frame_id_ = pnh_.param<std::string>("sun_frame_id", "sun");
+  publish_tf_ = pnh_.param("publish_tf", true);
+  const int queue_size = pnh_.param("queue_size", 4), max_batch = pnh_.param("max_batch", 8);
+  if (queue_size < 1) throw std::runtime_error("~queue_size must be >= 1");
+  if (max_batch < 1) throw std::runtime_error("~max_batch must be >= 1");
+  queue_size_ = static_cast<std::size_t>(queue_size);
+  max_batch_ = static_cast<std::size_t>(max_batch);
+  ScreenOptions screen;
+  screen.max_saturated_fraction = pnh_.param("max_saturated_fraction", screen.max_saturated_fraction);
+  screen.max_sigma_deg = pnh_.param("max_sigma_deg", screen.max_sigma_deg);
+  screen.fov_margin_deg = pnh_.param("fov_margin_deg", screen.fov_margin_deg);
+  try {
+    screen.validate();
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(std::string("~") + e.what());
+  }
+  // Inference per image is fastest single-threaded; the other core is left to
+  // the image source (README "Threads").
+  sparse::configureThreads(std::max(1, pnh_.param("aten_threads", 1)), std::max(1, pnh_.param("blas_threads", 1)));
+
+  EstimatorChoice choice = chooseEstimator(model_path_, calibration_path_, sensor);
+  if (choice.estimator) {
+    source_ = choice.estimator->source();
+    estimator_ = std::make_unique<ScreenedEstimator>(std::move(choice.estimator), screen);
+  }
+  is_fallback_ = choice.is_fallback;
+  estimator_problem_ = choice.problem;
+  if (!estimator_) {
+    ROS_ERROR("calibration_node: no estimator: %s. Every image will be answered valid=false (no_estimator).",
+              estimator_problem_.c_str());
+  } else if (is_fallback_) {
+    ROS_WARN("calibration_node: SSCNN not used (%s); falling back to the centroid baseline from %s",
+             estimator_problem_.c_str(), calibration_path_.c_str());
+  } else {
+    ROS_INFO("calibration_node: SSCNN model %s for sensor %s%s", model_path_.c_str(), sensor_name_.c_str(),
+             calibration_path_.empty() ? "" : (", fallback calibration " + calibration_path_).c_str());
+  }
+
+  angles_pub_ = nh_.advertise<SunAngles>("angles", 10);
+  vector_pub_ = nh_.advertise<geometry_msgs::Vector3Stamped>("sun_vector", 10);
+  // The subscriber queue is deep and its callback only enqueues, so that
+  // overload drops happen in our bounded queue, where they are counted.
+  image_sub_ = nh_.subscribe("image", 100, &CalibrationNode::onImage, this, ros::TransportHints().tcpNoDelay());
+
+  updater_.setHardwareID("sun_sensor_estimator/" + sensor_name_);
+  updater_.add("estimator", this, &CalibrationNode::diagnose);
+  last_diag_time_ = ros::WallTime::now();
+  diagnostics_timer_ = nh_.createTimer(ros::Duration(0.2), [this](const ros::TimerEvent&) { updater_.update(); });
+  worker_ = std::thread(&CalibrationNode::workerLoop, this);
+}
+
+CalibrationNode::~CalibrationNode() {
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    stopping_ = true;
+  }
+  queue_cv_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+void CalibrationNode::onImage(const sensor_msgs::Image::ConstPtr& msg) {
+  bool dropped = false;
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    if (queue_.size() >= queue_size_) {
+      queue_.pop_front();  // the newest image is the most useful to attitude control
+      dropped = true;
+    }
+    queue_.push_back(msg);
+  }
+  queue_cv_.notify_one();
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++received_;
+  if (dropped) ++dropped_;
+}
+
+void CalibrationNode::workerLoop() {
+  for (;;) {
+    std::vector<sensor_msgs::Image::ConstPtr> batch;
+    {
+      std::unique_lock<std::mutex> lock(queue_mutex_);
+      queue_cv_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+      if (stopping_) return;
+      while (!queue_.empty() && batch.size() < max_batch_) {
+        batch.push_back(queue_.front());
+        queue_.pop_front();
+      }
+    }
+    process(batch);
+  }
+}
+
+void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& batch) {
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<SunEstimate> estimates(batch.size());
+  std::vector<cv::Mat> images;
+  std::vector<std::size_t> where;
+  for (std::size_t i = 0; i < batch.size(); ++i) {
+    try {
+      images.push_back(imageFromMsg(*batch[i]));
+      where.push_back(i);
+    } catch (const std::invalid_argument& e) {
+      estimates[i].status = std::string("bad_image: ") + e.what();
+    }
+  }
+  if (!estimator_) {
+    for (std::size_t i : where) estimates[i].status = "no_estimator";
+  } else if (!images.empty()) {
+    try {
+      std::vector<SunEstimate> out = estimator_->estimate(images);
+      for (std::size_t k = 0; k < out.size(); ++k) estimates[where[k]] = std::move(out[k]);
+    } catch (const std::exception& e) {
+      ROS_ERROR_THROTTLE(5.0, "calibration_node: estimator failed: %s", e.what());
+      for (std::size_t i : where) estimates[i].status = std::string("estimator_error: ") + e.what();
+    }
+  }
+  for (std::size_t i = 0; i < batch.size(); ++i) {
+    // Encoding, buffer, or a size the sensor config disagrees with.
+    if (estimates[i].status.rfind("bad_image", 0) == 0)
+      ROS_ERROR_THROTTLE(5.0, "calibration_node: %s", estimates[i].status.c_str());
+    publish(batch[i]->header, estimates[i], estimator_ ? source_ : "none");
+  }
+  const double processing_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  const ros::Time now = ros::Time::now();
+
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  for (std::size_t i = 0; i < batch.size(); ++i) {
+    const SunEstimate& e = estimates[i];
+    ++processed_;
+    if (e.valid) {
+      ++valid_;
+      if (is_fallback_) ++fallback_estimates_;
+    } else {
+      const std::string reason = e.status.substr(0, e.status.find(':'));
+      ++invalid_reasons_[reason];
+      if (reason == "bad_image") ++bad_images_;
+    }
+    const double latency_ms = (now - batch[i]->header.stamp).toSec() * 1e3;
+    if (latency_ms_.size() < kLatencyWindow) {
+      latency_ms_.push_back(latency_ms);
+      processing_ms_.push_back(processing_ms);
+    } else {
+      latency_ms_[latency_next_] = latency_ms;
+      processing_ms_[latency_next_] = processing_ms;
+    }
+    latency_next_ = (latency_next_ + 1) % kLatencyWindow;
+  }
+}
+
+void CalibrationNode::publish(const std_msgs::Header& image_header, const SunEstimate& e, const std::string& source) {
+  std_msgs::Header header = image_header;
+  if (header.frame_id.empty()) header.frame_id = default_frame_id_;
+  auto angles = boost::make_shared<SunAngles>();
+  angles->header = header;
+  angles->alpha = e.valid ? e.alpha_rad : 0.0;
+  angles->beta = e.valid ? e.beta_rad : 0.0;
+  for (int k = 0; k < 4; ++k) angles->covariance[k] = e.valid ? e.covariance[k] : 0.0;
+  angles->subfov_class = e.valid ? e.subfov_class : SunAngles::SUBFOV_UNKNOWN;
+  angles->valid = e.valid;
+  angles->source = source;
+  angles->status = e.status;
+  angles_pub_.publish(angles);
+  if (!e.valid) return;
+
+  const Eigen::Vector3d sun = sunVectorFromAngles(e.alpha_rad, e.beta_rad);
+  auto vector = boost::make_shared<geometry_msgs::Vector3Stamped>();
+  vector->header = header;
+  vector->vector.x = sun.x();
+  vector->vector.y = sun.y();
+  vector->vector.z = sun.z();
+  vector_pub_.publish(vector);
+
+  if (publish_tf_) {
+    // The `sun` frame's +x axis points at the sun (DESIGN section 4).
+    const Eigen::Quaterniond q = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitX(), sun);
+    geometry_msgs::TransformStamped tf;
+    tf.header = header;
+    tf.child_frame_id = sun_frame_id_;
+    tf.transform.rotation.w = q.w();
+    tf.transform.rotation.x = q.x();
+    tf.transform.rotation.y = q.y();
+    tf.transform.rotation.z = q.z();
+    tf_broadcaster_.sendTransform(tf);
+  }
+}
+
+void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  const ros::WallTime now = ros::WallTime::now();
+  const double window_s = (now - last_diag_time_).toSec();
+  const double input_hz = window_s > 0.0 ? (received_ - received_at_last_diag_) / window_s : 0.0;
+  last_diag_time_ = now;
+  received_at_last_diag_ = received_;
+
+  if (!estimator_) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "no estimator: " + estimator_problem_);
+  } else if (is_fallback_) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "centroid fallback: " + estimator_problem_);
+  } else if (received_ == 0) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "waiting for images");
+  } else {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "estimating");
+  }
+  stat.add("sensor", sensor_name_);
+  stat.add("source", estimator_ ? source_ : "none");
+  stat.add("model", model_path_.empty() ? "none" : model_path_);
+  stat.add("calibration (fallback)", calibration_path_.empty() ? "none" : calibration_path_);
+  stat.add("input rate [Hz]", input_hz);
+  stat.add("images received", received_);
+  stat.add("images dropped", dropped_);
+  stat.add("bad images", bad_images_);
+  stat.add("images processed", processed_);
+  stat.add("valid rate [%]", processed_ ? 100.0 * valid_ / processed_ : 0.0);
+  stat.add("fallback estimates", fallback_estimates_);
+  stat.add("latency p50 [ms]", percentile(latency_ms_, 0.5));
+  stat.add("latency p99 [ms]", percentile(latency_ms_, 0.99));
+  stat.add("processing p50 [ms]", percentile(processing_ms_, 0.5));
+  std::ostringstream reasons;
+  for (const auto& [reason, count] : invalid_reasons_) reasons << (reasons.tellp() ? ", " : "") << reason << ": " << count;
+  stat.add("invalid reasons", reasons.str());
+  stat.add("resident memory [MiB]", residentMemoryMiB());
+}
+
+// Nodelet front end: same class, same parameters. Images from a simulator
+// nodelet in the same manager arrive without serialization.
+class CalibrationNodelet : public nodelet::Nodelet {
+ private:
+  void onInit() override {
+    try {
+      node_ = std::make_unique<CalibrationNode>(getNodeHandle(), getPrivateNodeHandle());
+    } catch (const std::exception& e) {
+      NODELET_FATAL("calibration nodelet: %s", e.what());
+    }
+  }
+  std::unique_ptr<CalibrationNode> node_;
+};
+
+}  // namespace dss
+
+PLUGINLIB_EXPORT_CLASS(dss::CalibrationNodelet, nodelet::Nodelet)

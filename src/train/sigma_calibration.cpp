@@ -1,0 +1,52 @@
+#include "digital_sun_sensor/train/sigma_calibration.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <stdexcept>
+
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sparse_input.h"
+
+namespace dss {
+
+SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples) {
+  if (data.size() == 0 || max_samples == 0) throw std::invalid_argument("sigma calibration: no samples");
+  const InputSpec& a = data.spec();
+  const InputSpec& b = model.meta.input;
+  if (a.width_px != b.width_px || a.height_px != b.height_px || a.max_code != b.max_code ||
+      a.threshold_dn != b.threshold_dn || a.black_level_dn != b.black_level_dn)
+    throw std::invalid_argument("sigma calibration: the samples were not encoded with the model's input spec");
+
+  std::vector<const SparseSample*> picked;
+  const std::size_t n = std::min(data.size(), max_samples);
+  for (std::size_t i = 0; i < n; ++i) picked.push_back(&data.samples()[i * data.size() / n]);
+  const std::vector<Prediction> predictions = model.predictSamples(picked);
+
+  std::vector<ErrorAndSigma> za, zb;
+  for (std::size_t k = 0; k < picked.size(); ++k) {
+    if (predictions[k].active_sites == 0) continue;  // answered "no_sun", not an estimate
+    za.push_back({predictions[k].alpha_rad - picked[k]->alpha_rad, std::sqrt(predictions[k].alpha_variance_rad2)});
+    zb.push_back({predictions[k].beta_rad - picked[k]->beta_rad, std::sqrt(predictions[k].beta_variance_rad2)});
+  }
+  SigmaCalibration c;
+  c.samples = za.size();
+  c.alpha_before = measureCoverage(za);
+  c.beta_before = measureCoverage(zb);
+  c.scale_alpha = sigmaScaleForCoverage(za);
+  c.scale_beta = sigmaScaleForCoverage(zb);
+  for (auto& s : za) s.sigma_rad *= c.scale_alpha;
+  for (auto& s : zb) s.sigma_rad *= c.scale_beta;
+  c.alpha_after = measureCoverage(za);
+  c.beta_after = measureCoverage(zb);
+
+  model.scaleSigma(c.scale_alpha, c.scale_beta);
+  YAML::Node metrics = YAML::Load(model.meta.metrics_yaml);
+  metrics["sigma_scale_alpha"] = c.scale_alpha;
+  metrics["sigma_scale_beta"] = c.scale_beta;
+  metrics["sigma_calibration_samples"] = c.samples;
+  model.meta.metrics_yaml = YAML::Dump(metrics);
+  return c;
+}
+
+}  // namespace dss

@@ -1,0 +1,141 @@
+// Runtime estimation around any estimator: the screens (saturation, predicted
+// uncertainty, field of view), the estimator factory with its centroid
+// fallback, and the uncertainty-coverage arithmetic.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <random>
+
+#include "digital_sun_sensor/baseline/calibration.h"
+#include "digital_sun_sensor/estimate/estimator_factory.h"
+#include "digital_sun_sensor/estimate/screened_estimator.h"
+#include "digital_sun_sensor/eval/uncertainty.h"
+
+namespace dss {
+namespace {
+
+constexpr double kRad = M_PI / 180.0;
+
+SensorConfig shipped(const std::string& name) {
+  return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml");
+}
+
+std::string modelPath() { return std::string(DSS_SOURCE_DIR) + "/models/thesis_sa.dssmodel"; }
+std::string calibrationPath() { return std::string(DSS_SOURCE_DIR) + "/models/thesis_sa.calib.yaml"; }
+
+SunEstimate validEstimate(double alpha_deg, double beta_deg, double sigma_deg) {
+  SunEstimate e;
+  e.alpha_rad = alpha_deg * kRad;
+  e.beta_rad = beta_deg * kRad;
+  const double var = std::pow(sigma_deg * kRad, 2);
+  e.covariance = {var, 0.0, 0.0, var};
+  e.valid = true;
+  return e;
+}
+
+TEST(Screen, SaturatedImagesAreRejected) {
+  ScreenOptions options;
+  cv::Mat image(512, 512, CV_8UC1, cv::Scalar(0));
+  EXPECT_EQ(screenImage(image, 255, options), "");
+  image(cv::Rect(0, 0, 20, 20)).setTo(255);  // 400 px: a bright spot, 0.15 % of the detector
+  EXPECT_EQ(screenImage(image, 255, options), "");
+  image(cv::Rect(0, 0, 100, 100)).setTo(255);  // 3.8 %
+  EXPECT_EQ(screenImage(image, 255, options), "saturated");
+  cv::Mat deep(64, 64, CV_16UC1, cv::Scalar(4095));
+  EXPECT_EQ(screenImage(deep, 4095, options), "saturated");
+  EXPECT_EQ(screenImage(deep, 65535, options), "");
+}
+
+TEST(Screen, EstimatesBeyondTheEnvelopeAreRejected) {
+  const SensorConfig sensor = shipped("thesis_sa");  // FOV +-4.54 deg
+  ScreenOptions options;
+  SunEstimate ok = validEstimate(1.0, -2.0, 0.001);
+  screenEstimate(&ok, sensor, options);
+  EXPECT_TRUE(ok.valid);
+
+  SunEstimate unsure = validEstimate(1.0, -2.0, 0.05);
+  screenEstimate(&unsure, sensor, options);
+  EXPECT_FALSE(unsure.valid);
+  EXPECT_EQ(unsure.status, "out_of_distribution");
+
+  SunEstimate outside = validEstimate(4.9, 0.0, 0.001);
+  screenEstimate(&outside, sensor, options);
+  EXPECT_FALSE(outside.valid);
+  EXPECT_EQ(outside.status, "outside_fov");
+
+  SunEstimate nan = validEstimate(1.0, 1.0, 0.001);
+  nan.covariance[3] = std::nan("");
+  screenEstimate(&nan, sensor, options);
+  EXPECT_EQ(nan.status, "out_of_distribution");
+
+  options.max_sigma_deg = -1.0;
+  EXPECT_THROW(options.validate(), std::invalid_argument);
+}
+
+TEST(EstimatorFactory, ParsesSpecsAndChecksTheSensor) {
+  EXPECT_THROW(makeEstimator("sscnn"), std::invalid_argument);
+  EXPECT_THROW(makeEstimator("kalman:x.yaml"), std::invalid_argument);
+  const SensorConfig sa = shipped("thesis_sa"), wide = shipped("wide_ma");
+  EXPECT_EQ(makeEstimator("sscnn:" + modelPath(), &sa)->source(), "sscnn");
+  EXPECT_EQ(makeEstimator("centroid:" + calibrationPath(), &sa)->source(), "centroid");
+  EXPECT_THROW(makeEstimator("sscnn:" + modelPath(), &wide), std::runtime_error);
+  try {
+    makeEstimator("centroid:" + calibrationPath(), &wide);
+    ADD_FAILURE() << "a thesis_sa calibration was accepted for wide_ma";
+  } catch (const CalibrationError& e) {
+    EXPECT_NE(std::string(e.what()).find("wide_ma"), std::string::npos) << e.what();
+  }
+}
+
+TEST(EstimatorFactory, FallsBackToTheCentroidBaselineAndSaysWhy) {
+  const SensorConfig sa = shipped("thesis_sa");
+  EstimatorChoice primary = chooseEstimator(modelPath(), calibrationPath(), sa);
+  ASSERT_TRUE(primary.estimator);
+  EXPECT_EQ(primary.estimator->source(), "sscnn");
+  EXPECT_FALSE(primary.is_fallback);
+  EXPECT_EQ(primary.problem, "");
+
+  // A truncated model file: the centroid baseline takes over.
+  const std::string broken = ::testing::TempDir() + "dss_broken.dssmodel";
+  {
+    std::FILE* f = std::fopen(broken.c_str(), "wb");
+    std::fputs("DSSMODEL truncated", f);
+    std::fclose(f);
+  }
+  EstimatorChoice fallback = chooseEstimator(broken, calibrationPath(), sa);
+  ASSERT_TRUE(fallback.estimator);
+  EXPECT_EQ(fallback.estimator->source(), "centroid");
+  EXPECT_TRUE(fallback.is_fallback);
+  EXPECT_NE(fallback.problem.find(broken), std::string::npos) << fallback.problem;
+
+  EstimatorChoice none = chooseEstimator("", "", sa);
+  EXPECT_FALSE(none.estimator);
+  EXPECT_NE(none.problem.find("no model file"), std::string::npos) << none.problem;
+  EXPECT_NE(none.problem.find("no calibration file"), std::string::npos) << none.problem;
+  std::remove(broken.c_str());
+}
+
+TEST(Uncertainty, CoverageAndScaleOfGaussianErrors) {
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::vector<ErrorAndSigma> honest, pessimistic;
+  for (int i = 0; i < 20000; ++i) {
+    const double sigma = 0.5 + (i % 7) * 0.25;  // varying per sample, like the SSCNN's
+    const double error = sigma * normal(rng);
+    honest.push_back({error, sigma});
+    pessimistic.push_back({error, 4.0 * sigma});
+  }
+  const Coverage c = measureCoverage(honest);
+  EXPECT_NEAR(c.within[0], 0.6827, 0.01);
+  EXPECT_NEAR(c.within[1], 0.9545, 0.005);
+  EXPECT_NEAR(c.within[2], 0.9973, 0.002);
+  EXPECT_NEAR(sigmaScaleForCoverage(honest), 1.0, 0.03);
+  EXPECT_GT(measureCoverage(pessimistic).within[0], 0.95);
+  EXPECT_NEAR(sigmaScaleForCoverage(pessimistic), 0.25, 0.01);
+  EXPECT_EQ(measureCoverage({{1.0, 0.0}}).within[2], 0.0);  // no sigma: outside
+  EXPECT_EQ(sigmaScaleForCoverage({}), 1.0);
+}
+
+}  // namespace
+}  // namespace dss
