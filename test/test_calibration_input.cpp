@@ -36,7 +36,8 @@ sensor_msgs::ImagePtr makeImage(const std::string& encoding, int width, int heig
 }
 
 sensor_msgs::ImagePtr renderedImage(double alpha_deg, double beta_deg) {
-  const dss::SensorConfig config = dss::loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml");
+  const dss::SensorConfig config =
+      dss::loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml");
   const dss::Renderer renderer(dss::SensorInstance::draw(config, 1));
   dss::ImageTruth truth;
   const cv::Mat image = renderer.render(dss::sunVectorFromAngles(alpha_deg * kRad, beta_deg * kRad), 3, &truth);

@@ -7,9 +7,9 @@
 #include <fstream>
 
 #include "digital_sun_sensor/common/file_io.h"
-#include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/eval/uncertainty.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/train/trainer.h"
 
 namespace dss {
@@ -44,7 +44,7 @@ TrainOptions tinyOptions() {
   o.epochs = 6;
   o.learning_rate = 3e-3;
   o.seed = 3;
-  o.progress_interval_s = 0;  // a callback after every step
+  o.progress_interval_s = 0;               // a callback after every step
   o.augmentation.noise_probability = 0.3;  // exercises the seeded augmentation in resume
   o.augmentation.noise_sigma_dn = 2.0;
   return o;

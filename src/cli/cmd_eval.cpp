@@ -5,10 +5,10 @@
 #include <thread>
 
 #include "commands.h"
-#include "digital_sun_sensor/ros/dataset_source.h"
+#include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/eval/crlb.h"
 #include "digital_sun_sensor/eval/evaluation.h"
-#include "digital_sun_sensor/estimate/estimator_factory.h"
+#include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sparse/threads.h"
 #include "progress.h"
 

@@ -1,12 +1,11 @@
 // dss subcommands. Each returns the process exit code.
 #pragma once
 
-#include "cli_args.h"
-
-#include "digital_sun_sensor/sim/sensor_config.h"
-
 #include <string>
 #include <vector>
+
+#include "cli_args.h"
+#include "digital_sun_sensor/sim/sensor_config.h"
 
 namespace dss::cli {
 

@@ -1,8 +1,8 @@
 // dss: the digital_sun_sensor command line (no ROS master needed).
-#include "commands.h"
-
 #include <iostream>
 #include <string>
+
+#include "commands.h"
 
 namespace {
 

@@ -12,7 +12,7 @@ constexpr double kOneSigmaFraction = 0.682689492137;
 
 double standardized(const ErrorAndSigma& s) {
   return s.sigma_rad > 0.0 && std::isfinite(s.sigma_rad) ? std::abs(s.error_rad) / s.sigma_rad
-                                                           : std::numeric_limits<double>::infinity();
+                                                         : std::numeric_limits<double>::infinity();
 }
 
 }  // namespace

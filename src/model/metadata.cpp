@@ -154,8 +154,8 @@ void checkSensorCompatible(const ModelMetadata& meta, const SensorConfig& config
   const std::string mismatch = sensorDesignMismatch(trained, config);
   if (!mismatch.empty()) throw ModelError(origin + ": the model was made for " + mismatch);
   if (meta.arch.num_classes != config.numSubFovClasses())
-    throw ModelError(origin + ": the model has " + std::to_string(meta.arch.num_classes) + " sub-FOV classes, sensor '" +
-                     config.name + "' " + std::to_string(config.numSubFovClasses()));
+    throw ModelError(origin + ": the model has " + std::to_string(meta.arch.num_classes) +
+                     " sub-FOV classes, sensor '" + config.name + "' " + std::to_string(config.numSubFovClasses()));
 }
 
 }  // namespace dss

@@ -2,13 +2,12 @@
 
 #include <geometry_msgs/TransformStamped.h>
 #include <geometry_msgs/Vector3Stamped.h>
-#include <nodelet/nodelet.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <ros/package.h>
 
 #include <Eigen/Geometry>
 #include <chrono>
 #include <fstream>
+#include <pluginlib/class_list_macros.hpp>
 #include <sstream>
 
 #include "digital_sun_sensor/common/statistics.h"
@@ -16,6 +15,7 @@
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/ros/conversions.h"
 #include "digital_sun_sensor/ros/node_params.h"
+#include "digital_sun_sensor/ros/node_runner.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sparse/threads.h"
 
@@ -179,8 +179,7 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
       ROS_ERROR_THROTTLE(5.0, "calibration_node: %s", estimates[i].status.c_str());
     publish(batch[i]->header, estimates[i], estimator_ ? source_ : "none");
   }
-  const double processing_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  const double processing_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   const ros::Time now = ros::Time::now();
 
   std::lock_guard<std::mutex> lock(stats_mutex_);
@@ -276,24 +275,15 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("latency p99 [ms]", percentile(latency_ms_, 0.99));
   stat.add("processing p50 [ms]", percentile(processing_ms_, 0.5));
   std::ostringstream reasons;
-  for (const auto& [reason, count] : invalid_reasons_) reasons << (reasons.tellp() ? ", " : "") << reason << ": " << count;
+  for (const auto& [reason, count] : invalid_reasons_)
+    reasons << (reasons.tellp() ? ", " : "") << reason << ": " << count;
   stat.add("invalid reasons", reasons.str());
   stat.add("resident memory [MiB]", residentMemoryMiB());
 }
 
 // Nodelet front end: same class, same parameters. Images from a simulator
 // nodelet in the same manager arrive without serialization.
-class CalibrationNodelet : public nodelet::Nodelet {
- private:
-  void onInit() override {
-    try {
-      node_ = std::make_unique<CalibrationNode>(getNodeHandle(), getPrivateNodeHandle());
-    } catch (const std::exception& e) {
-      NODELET_FATAL("calibration nodelet: %s", e.what());
-    }
-  }
-  std::unique_ptr<CalibrationNode> node_;
-};
+class CalibrationNodelet : public NodeletFor<CalibrationNode> {};
 
 }  // namespace dss
 

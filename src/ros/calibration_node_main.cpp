@@ -1,13 +1,4 @@
 #include "digital_sun_sensor/ros/calibration_node.h"
+#include "digital_sun_sensor/ros/node_runner.h"
 
-int main(int argc, char** argv) {
-  ros::init(argc, argv, "calibration");
-  try {
-    dss::CalibrationNode node(ros::NodeHandle(), ros::NodeHandle("~"));
-    ros::spin();
-  } catch (const std::exception& e) {
-    ROS_FATAL("calibration_node: %s", e.what());
-    return 1;
-  }
-  return 0;
-}
+int main(int argc, char** argv) { return dss::runNode<dss::CalibrationNode>(argc, argv, "calibration"); }

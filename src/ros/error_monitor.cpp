@@ -69,8 +69,8 @@ class ErrorMonitor {
       std::printf("error_monitor: waiting for matching /sun_sensor/angles and /sun_sensor/truth...\n");
     } else if (!last_est_.valid) {
       std::printf("[%s] invalid (%s) | truth a %+.5f b %+.5f deg | %lu images, %.0f%% valid\n",
-                  last_est_.source.c_str(), last_est_.status.c_str(), last_truth_.alpha * kDeg,
-                  last_truth_.beta * kDeg, count_, 100.0 * valid_ / count_);
+                  last_est_.source.c_str(), last_est_.status.c_str(), last_truth_.alpha * kDeg, last_truth_.beta * kDeg,
+                  count_, 100.0 * valid_ / count_);
     } else {
       const double da = (last_est_.alpha - last_truth_.alpha) * kDeg, db = (last_est_.beta - last_truth_.beta) * kDeg;
       std::printf(

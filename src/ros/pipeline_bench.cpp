@@ -1,17 +1,16 @@
 #include "digital_sun_sensor/ros/pipeline_bench.h"
 
-#include <nodelet/nodelet.h>
-#include <pluginlib/class_list_macros.hpp>
-
 #include <chrono>
 #include <cmath>
 #include <fstream>
 #include <iostream>
+#include <pluginlib/class_list_macros.hpp>
 #include <sstream>
 
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/statistics.h"
 #include "digital_sun_sensor/ros/node_params.h"
+#include "digital_sun_sensor/ros/node_runner.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 
 namespace dss {
@@ -174,26 +173,15 @@ std::string PipelineBench::report(double elapsed_s, std::uint64_t published) con
     << ", \"latency_max_ms\": " << percentile(latency_ms_, 1.0)
     << ", \"valid_fraction\": " << (answered_ ? static_cast<double>(valid_) / answered_ : 0.0)
     << ", \"mean_error_alpha_deg\": " << mean(abs_error_alpha_deg_)
-    << ", \"mean_error_beta_deg\": " << mean(abs_error_beta_deg_)
-    << ", \"estimator_dropped_total\": \"" << estimator_dropped_ << "\", \"estimator_rss_start_mib\": "
-    << rss_first_mib_ << ", \"estimator_rss_max_mib\": " << rss_max_mib_
-    << ", \"estimator_rss_end_mib\": " << rss_last_mib_ << "}";
+    << ", \"mean_error_beta_deg\": " << mean(abs_error_beta_deg_) << ", \"estimator_dropped_total\": \""
+    << estimator_dropped_ << "\", \"estimator_rss_start_mib\": " << rss_first_mib_
+    << ", \"estimator_rss_max_mib\": " << rss_max_mib_ << ", \"estimator_rss_end_mib\": " << rss_last_mib_ << "}";
   return o.str();
 }
 
 // Nodelet front end: put it in the estimator's manager to measure the
 // zero-copy pipeline.
-class PipelineBenchNodelet : public nodelet::Nodelet {
- private:
-  void onInit() override {
-    try {
-      bench_ = std::make_unique<PipelineBench>(getNodeHandle(), getPrivateNodeHandle());
-    } catch (const std::exception& e) {
-      NODELET_FATAL("pipeline_bench nodelet: %s", e.what());
-    }
-  }
-  std::unique_ptr<PipelineBench> bench_;
-};
+class PipelineBenchNodelet : public NodeletFor<PipelineBench> {};
 
 }  // namespace dss
 

@@ -1,18 +1,16 @@
 #include "digital_sun_sensor/ros/simulator_node.h"
 
-#include "digital_sun_sensor/ros/conversions.h"
-#include "digital_sun_sensor/ros/node_params.h"
-#include "digital_sun_sensor/sim/geometry.h"
-#include "digital_sun_sensor/sim/spot_cache.h"
-
-#include <nodelet/nodelet.h>
-#include <pluginlib/class_list_macros.hpp>
-
 #include <Eigen/Geometry>
-
 #include <chrono>
 #include <cmath>
+#include <pluginlib/class_list_macros.hpp>
 #include <stdexcept>
+
+#include "digital_sun_sensor/ros/conversions.h"
+#include "digital_sun_sensor/ros/node_params.h"
+#include "digital_sun_sensor/ros/node_runner.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/spot_cache.h"
 
 namespace dss {
 namespace {
@@ -88,8 +86,8 @@ SimulatorNode::SimulatorNode(ros::NodeHandle nh, ros::NodeHandle pnh)
 
   start_ = ros::Time::now();
   timer_ = nh_.createTimer(ros::Duration(1.0 / rate_hz_), &SimulatorNode::onTimer, this);
-  ROS_INFO("simulator_node: %s at %.1f Hz, profile '%s' until an attitude arrives on %s", config.name.c_str(),
-           rate_hz_, profile_.c_str(), attitude_sub_.getTopic().c_str());
+  ROS_INFO("simulator_node: %s at %.1f Hz, profile '%s' until an attitude arrives on %s", config.name.c_str(), rate_hz_,
+           profile_.c_str(), attitude_sub_.getTopic().c_str());
 }
 
 void SimulatorNode::onAttitude(const geometry_msgs::QuaternionStamped::ConstPtr& msg) {
@@ -196,17 +194,7 @@ void SimulatorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
 }
 
 // Nodelet front end: same class, same parameters.
-class SimulatorNodelet : public nodelet::Nodelet {
- private:
-  void onInit() override {
-    try {
-      node_ = std::make_unique<SimulatorNode>(getNodeHandle(), getPrivateNodeHandle());
-    } catch (const std::exception& e) {
-      NODELET_FATAL("simulator nodelet: %s", e.what());
-    }
-  }
-  std::unique_ptr<SimulatorNode> node_;
-};
+class SimulatorNodelet : public NodeletFor<SimulatorNode> {};
 
 }  // namespace dss
 

@@ -1,11 +1,11 @@
 #include "digital_sun_sensor/sim/sensor_config.h"
 
-#include "digital_sun_sensor/common/file_io.h"
-
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
 #include <sstream>
+
+#include "digital_sun_sensor/common/file_io.h"
 
 namespace dss {
 namespace {
@@ -360,9 +360,9 @@ std::string toYaml(const SensorConfig& c) {
   YAML::Emitter e;
   e << YAML::BeginMap;
   e << YAML::Key << "name" << YAML::Value << c.name;
-  e << YAML::Key << "detector" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "width_px"
-    << YAML::Value << c.detector.width_px << YAML::Key << "height_px" << YAML::Value << c.detector.height_px
-    << YAML::Key << "pitch_um" << YAML::Value << c.detector.pitch_um << YAML::EndMap;
+  e << YAML::Key << "detector" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "width_px" << YAML::Value
+    << c.detector.width_px << YAML::Key << "height_px" << YAML::Value << c.detector.height_px << YAML::Key << "pitch_um"
+    << YAML::Value << c.detector.pitch_um << YAML::EndMap;
   e << YAML::Key << "mask" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "height_mm" << YAML::Value << c.mask.height_mm;
   e << YAML::Key << "thickness_mm" << YAML::Value << c.mask.thickness_mm;
@@ -374,80 +374,73 @@ std::string toYaml(const SensorConfig& c) {
       e << YAML::Key << "shape" << YAML::Value << "circle" << YAML::Key << "diameter_um" << YAML::Value
         << a.diameter_um;
     } else {
-      e << YAML::Key << "shape" << YAML::Value << "rectangle" << YAML::Key << "width_um" << YAML::Value
-        << a.width_um << YAML::Key << "height_um" << YAML::Value << a.height_um << YAML::Key << "rotation_deg"
-        << YAML::Value << a.rotation_deg;
+      e << YAML::Key << "shape" << YAML::Value << "rectangle" << YAML::Key << "width_um" << YAML::Value << a.width_um
+        << YAML::Key << "height_um" << YAML::Value << a.height_um << YAML::Key << "rotation_deg" << YAML::Value
+        << a.rotation_deg;
     }
     e << YAML::EndMap;
   }
   e << YAML::EndSeq << YAML::EndMap;
   e << YAML::Key << "cover_glass" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "enabled"
-    << YAML::Value << c.cover_glass.enabled << YAML::Key << "thickness_mm" << YAML::Value
-    << c.cover_glass.thickness_mm << YAML::Key << "refractive_index" << YAML::Value
-    << c.cover_glass.refractive_index << YAML::EndMap;
+    << YAML::Value << c.cover_glass.enabled << YAML::Key << "thickness_mm" << YAML::Value << c.cover_glass.thickness_mm
+    << YAML::Key << "refractive_index" << YAML::Value << c.cover_glass.refractive_index << YAML::EndMap;
   e << YAML::Key << "optics" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "mode" << YAML::Value << (c.optics.mode == OpticsMode::kFresnel ? "fresnel" : "far_field");
   e << YAML::Key << "wavelengths_um" << YAML::Value << YAML::Flow << c.optics.wavelengths_um;
   e << YAML::Key << "spectral_weights" << YAML::Value << YAML::Flow << c.optics.spectral_weights;
-  e << YAML::Key << "sun_disk" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "enabled"
-    << YAML::Value << c.optics.sun.enabled << YAML::Key << "angular_diameter_deg" << YAML::Value
-    << c.optics.sun.angular_diameter_deg << YAML::Key << "limb_darkening_u" << YAML::Value
-    << c.optics.sun.limb_darkening_u << YAML::EndMap;
+  e << YAML::Key << "sun_disk" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "enabled" << YAML::Value
+    << c.optics.sun.enabled << YAML::Key << "angular_diameter_deg" << YAML::Value << c.optics.sun.angular_diameter_deg
+    << YAML::Key << "limb_darkening_u" << YAML::Value << c.optics.sun.limb_darkening_u << YAML::EndMap;
   e << YAML::Key << "vignetting" << YAML::Value << c.optics.vignetting;
   e << YAML::Key << "grid_step_um" << YAML::Value << c.optics.grid_step_um;
   e << YAML::Key << "grid_size" << YAML::Value << c.optics.grid_size;
   e << YAML::Key << "psf_node_step_deg" << YAML::Value << c.optics.psf_node_step_deg;
   e << YAML::EndMap;
-  e << YAML::Key << "radiometry" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key
-    << "irradiance_w_m2" << YAML::Value << c.radiometry.irradiance_w_m2 << YAML::Key << "nd_transmission"
-    << YAML::Value << c.radiometry.nd_transmission << YAML::Key << "quantum_efficiency" << YAML::Value
+  e << YAML::Key << "radiometry" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "irradiance_w_m2"
+    << YAML::Value << c.radiometry.irradiance_w_m2 << YAML::Key << "nd_transmission" << YAML::Value
+    << c.radiometry.nd_transmission << YAML::Key << "quantum_efficiency" << YAML::Value
     << c.radiometry.quantum_efficiency << YAML::EndMap;
-  e << YAML::Key << "exposure" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "mode"
-    << YAML::Value << (c.exposure.mode == ExposureMode::kAuto ? "auto" : "fixed") << YAML::Key
-    << "peak_fraction_of_full_well" << YAML::Value << c.exposure.peak_fraction_of_full_well << YAML::Key
-    << "exposure_s" << YAML::Value << c.exposure.exposure_s << YAML::EndMap;
+  e << YAML::Key << "exposure" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "mode" << YAML::Value
+    << (c.exposure.mode == ExposureMode::kAuto ? "auto" : "fixed") << YAML::Key << "peak_fraction_of_full_well"
+    << YAML::Value << c.exposure.peak_fraction_of_full_well << YAML::Key << "exposure_s" << YAML::Value
+    << c.exposure.exposure_s << YAML::EndMap;
   const auto& n = c.noise;
   e << YAML::Key << "detector_noise" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "shot_noise" << YAML::Value << n.shot_noise << YAML::Key << "read_noise_e" << YAML::Value
-    << n.read_noise_e << YAML::Key << "full_well_e" << YAML::Value << n.full_well_e << YAML::Key
-    << "adc_full_scale_e" << YAML::Value << n.adc_full_scale_e << YAML::Key << "bit_depth" << YAML::Value
-    << n.bit_depth << YAML::Key << "black_level_dn" << YAML::Value << n.black_level_dn << YAML::Key
-    << "dark_current_e_per_s" << YAML::Value << n.dark_current_e_per_s << YAML::Key << "dark_reference_temp_c"
-    << YAML::Value << n.dark_reference_temp_c << YAML::Key << "dark_doubling_temp_c" << YAML::Value
-    << n.dark_doubling_temp_c << YAML::Key << "temperature_c" << YAML::Value << n.temperature_c << YAML::Key
-    << "dsnu_fraction" << YAML::Value << n.dsnu_fraction << YAML::Key << "prnu_fraction" << YAML::Value
-    << n.prnu_fraction << YAML::EndMap;
-  e << YAML::Key << "threshold" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "enabled"
-    << YAML::Value << c.threshold.enabled << YAML::Key << "level_fraction" << YAML::Value
-    << c.threshold.level_fraction << YAML::Key << "rescale" << YAML::Value << c.threshold.rescale
-    << YAML::EndMap;
+    << n.read_noise_e << YAML::Key << "full_well_e" << YAML::Value << n.full_well_e << YAML::Key << "adc_full_scale_e"
+    << YAML::Value << n.adc_full_scale_e << YAML::Key << "bit_depth" << YAML::Value << n.bit_depth << YAML::Key
+    << "black_level_dn" << YAML::Value << n.black_level_dn << YAML::Key << "dark_current_e_per_s" << YAML::Value
+    << n.dark_current_e_per_s << YAML::Key << "dark_reference_temp_c" << YAML::Value << n.dark_reference_temp_c
+    << YAML::Key << "dark_doubling_temp_c" << YAML::Value << n.dark_doubling_temp_c << YAML::Key << "temperature_c"
+    << YAML::Value << n.temperature_c << YAML::Key << "dsnu_fraction" << YAML::Value << n.dsnu_fraction << YAML::Key
+    << "prnu_fraction" << YAML::Value << n.prnu_fraction << YAML::EndMap;
+  e << YAML::Key << "threshold" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "enabled" << YAML::Value
+    << c.threshold.enabled << YAML::Key << "level_fraction" << YAML::Value << c.threshold.level_fraction << YAML::Key
+    << "rescale" << YAML::Value << c.threshold.rescale << YAML::EndMap;
   const auto& ab = c.as_built;
   e << YAML::Key << "as_built" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "height_sigma_um"
     << YAML::Value << ab.height_sigma_um << YAML::Key << "offset_sigma_um" << YAML::Value << ab.offset_sigma_um
-    << YAML::Key << "rotation_sigma_deg" << YAML::Value << ab.rotation_sigma_deg << YAML::Key
-    << "tilt_sigma_deg" << YAML::Value << ab.tilt_sigma_deg << YAML::Key << "aperture_position_sigma_um"
-    << YAML::Value << ab.aperture_position_sigma_um << YAML::Key << "aperture_diameter_sigma_um" << YAML::Value
+    << YAML::Key << "rotation_sigma_deg" << YAML::Value << ab.rotation_sigma_deg << YAML::Key << "tilt_sigma_deg"
+    << YAML::Value << ab.tilt_sigma_deg << YAML::Key << "aperture_position_sigma_um" << YAML::Value
+    << ab.aperture_position_sigma_um << YAML::Key << "aperture_diameter_sigma_um" << YAML::Value
     << ab.aperture_diameter_sigma_um << YAML::EndMap;
   const auto& an = c.anomalies;
   e << YAML::Key << "anomalies" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "stray_light" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "probability"
     << YAML::Value << an.stray_light_probability << YAML::Key << "max_fraction" << YAML::Value
     << an.stray_light_max_fraction << YAML::EndMap;
-  e << YAML::Key << "hot_pixels" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "count"
-    << YAML::Value << an.hot_pixel_count << YAML::Key << "min_e_per_s" << YAML::Value << an.hot_pixel_min_e_per_s
-    << YAML::Key << "max_e_per_s" << YAML::Value << an.hot_pixel_max_e_per_s << YAML::EndMap;
-  e << YAML::Key << "debris" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "probability"
-    << YAML::Value << an.debris_probability << YAML::Key << "max_blocked_fraction" << YAML::Value
-    << an.debris_max_blocked_fraction << YAML::EndMap;
-  e << YAML::Key << "ghost" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "probability"
-    << YAML::Value << an.ghost_probability << YAML::Key << "reflectance" << YAML::Value << an.ghost_reflectance
+  e << YAML::Key << "hot_pixels" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "count" << YAML::Value
+    << an.hot_pixel_count << YAML::Key << "min_e_per_s" << YAML::Value << an.hot_pixel_min_e_per_s << YAML::Key
+    << "max_e_per_s" << YAML::Value << an.hot_pixel_max_e_per_s << YAML::EndMap;
+  e << YAML::Key << "debris" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "probability" << YAML::Value
+    << an.debris_probability << YAML::Key << "max_blocked_fraction" << YAML::Value << an.debris_max_blocked_fraction
     << YAML::EndMap;
+  e << YAML::Key << "ghost" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "probability" << YAML::Value
+    << an.ghost_probability << YAML::Key << "reflectance" << YAML::Value << an.ghost_reflectance << YAML::EndMap;
   e << YAML::EndMap;
-  e << YAML::Key << "fov" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "alpha_max_deg"
-    << YAML::Value << c.fov.alpha_max_deg << YAML::Key << "beta_max_deg" << YAML::Value << c.fov.beta_max_deg
-    << YAML::EndMap;
-  e << YAML::Key << "subfov" << YAML::Value
-    << (c.subfov == SubFovType::kQuadrant ? "quadrant" : "nearest_aperture");
+  e << YAML::Key << "fov" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "alpha_max_deg" << YAML::Value
+    << c.fov.alpha_max_deg << YAML::Key << "beta_max_deg" << YAML::Value << c.fov.beta_max_deg << YAML::EndMap;
+  e << YAML::Key << "subfov" << YAML::Value << (c.subfov == SubFovType::kQuadrant ? "quadrant" : "nearest_aperture");
   e << YAML::EndMap;
   return e.c_str();
 }
@@ -463,7 +456,9 @@ std::string sensorDesignMismatch(const SensorConfig& made_for, const SensorConfi
       << "' has " << config_value;
     return o.str();
   };
-  auto differs = [](double a, double b, double rel) { return std::abs(a - b) > rel * std::max(std::abs(a), std::abs(b)); };
+  auto differs = [](double a, double b, double rel) {
+    return std::abs(a - b) > rel * std::max(std::abs(a), std::abs(b));
+  };
   if (made_for.detector.width_px != config.detector.width_px)
     return mismatch("detector.width_px", made_for.detector.width_px, config.detector.width_px);
   if (made_for.detector.height_px != config.detector.height_px)

@@ -104,10 +104,14 @@ std::string formatProgress(const TrainProgress& p) {
 
 const char* toString(TrainStop stop) {
   switch (stop) {
-    case TrainStop::finished: return "finished";
-    case TrainStop::early_stopped: return "early_stopped";
-    case TrainStop::time_limit: return "time_limit";
-    case TrainStop::interrupted: return "interrupted";
+    case TrainStop::finished:
+      return "finished";
+    case TrainStop::early_stopped:
+      return "early_stopped";
+    case TrainStop::time_limit:
+      return "time_limit";
+    case TrainStop::interrupted:
+      return "interrupted";
   }
   return "unknown";
 }
@@ -163,8 +167,7 @@ struct Trainer::Impl {
     model = createModel(sensor, options.arch, deriveSeed(options.seed, 0xA7C4));
     model.net->train();
     optimizer = std::make_unique<torch::optim::AdamW>(
-        model.net->parameters(),
-        torch::optim::AdamWOptions(options.learning_rate).weight_decay(options.weight_decay));
+        model.net->parameters(), torch::optim::AdamWOptions(options.learning_rate).weight_decay(options.weight_decay));
     data_fingerprint = fingerprint(train) ^ splitmix64(fingerprint(validation));
   }
 
@@ -212,14 +215,12 @@ struct Trainer::Impl {
     const auto target = torch::tensor(targets).view({-1, 2});
 
     const double lr = learningRate(epoch * stepsPerEpoch() + step_in_epoch);
-    for (auto& group : optimizer->param_groups())
-      static_cast<torch::optim::AdamWOptions&>(group.options()).lr(lr);
+    for (auto& group : optimizer->param_groups()) static_cast<torch::optim::AdamWOptions&>(group.options()).lr(lr);
     last.learning_rate = lr;
     optimizer->zero_grad();
     const auto out = model.net->forward(input);
     const double class_weight = sensor.numSubFovClasses() > 1 ? options.class_loss_weight : 0.0;
-    const auto loss =
-        trainingLoss(out, target, torch::tensor(classes), model.meta.arch.residual_scale, class_weight);
+    const auto loss = trainingLoss(out, target, torch::tensor(classes), model.meta.arch.residual_scale, class_weight);
     loss.backward();
     optimizer->step();
     return loss.item<double>();
@@ -429,9 +430,9 @@ TrainResult Trainer::run(const std::function<void(const TrainProgress&)>& on_pro
     m.last.elapsed_s = m.elapsed_before_s + run_s;
     m.last.images_per_s = run_s > 0 ? static_cast<double>(steps_this_run * m.options.batch_size) / run_s : 0.0;
     const std::int64_t done = static_cast<std::int64_t>(m.epoch) * steps_per_epoch + m.step_in_epoch;
-    m.last.eta_s = steps_this_run > 0 ? run_s / static_cast<double>(steps_this_run) *
-                                            static_cast<double>(total_steps - done)
-                                      : 0.0;
+    m.last.eta_s = steps_this_run > 0
+                       ? run_s / static_cast<double>(steps_this_run) * static_cast<double>(total_steps - done)
+                       : 0.0;
     loss_sum = 0;
     loss_count = 0;
     if (on_progress) on_progress(m.last);

@@ -67,8 +67,8 @@ class CalibrationNode {
   std::uint64_t received_ = 0, dropped_ = 0, processed_ = 0, valid_ = 0, fallback_estimates_ = 0;
   std::uint64_t bad_images_ = 0;
   std::map<std::string, std::uint64_t> invalid_reasons_;
-  std::vector<double> latency_ms_;      // image stamp -> publish, ring buffer
-  std::vector<double> processing_ms_;   // dequeue -> publish, ring buffer
+  std::vector<double> latency_ms_;     // image stamp -> publish, ring buffer
+  std::vector<double> processing_ms_;  // dequeue -> publish, ring buffer
   std::size_t latency_next_ = 0;
   std::uint64_t received_at_last_diag_ = 0;
   ros::WallTime last_diag_time_;

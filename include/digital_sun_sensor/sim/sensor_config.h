@@ -66,9 +66,9 @@ struct OpticsConfig {
   std::vector<double> wavelengths_um;
   std::vector<double> spectral_weights;  // AM0 x sensor response, any scale
   SunDiskConfig sun;
-  bool vignetting = true;        // mask-thickness clipping at oblique incidence
-  double grid_step_um = 1.0;     // diffraction sampling on mask and detector
-  int grid_size = 512;           // FFT size (grid_size * grid_step_um = window)
+  bool vignetting = true;          // mask-thickness clipping at oblique incidence
+  double grid_step_um = 1.0;       // diffraction sampling on mask and detector
+  int grid_size = 512;             // FFT size (grid_size * grid_step_um = window)
   double psf_node_step_deg = 1.0;  // spot shapes cached on this incidence grid
 };
 
@@ -167,8 +167,7 @@ struct SensorConfig {
 // Loads and validates a sensor config. `overrides` are "dotted.key=value"
 // strings applied to the YAML before validation (e.g. "optics.mode=far_field").
 // Throws ConfigError naming the file and key on any problem.
-SensorConfig loadSensorConfig(const std::string& path,
-                              const std::vector<std::string>& overrides = {});
+SensorConfig loadSensorConfig(const std::string& path, const std::vector<std::string>& overrides = {});
 
 // Same, from YAML text (`origin` names it in messages).
 SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& origin,
