@@ -20,7 +20,7 @@ mkdir -p "$DATA" "$ROOT/models"
 recipe() {
   case "$1" in
     thesis_sa) echo "60000 501 502 45" ;;
-    thesis_ma) echo "60000 511 512 15" ;;  # 9 spots: 230 images/s, so 15 epochs fit the hour
+    thesis_ma) echo "60000 511 512 45" ;;
     wide_ma) echo "60000 521 522 45" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
