@@ -66,7 +66,9 @@ class ErrorMonitor {
   }
   void print(const ros::WallTimerEvent&) {
     if (count_ == 0) {
-      std::printf("error_monitor: waiting for matching /sun_sensor/angles and /sun_sensor/truth...\n");
+      // Once, and again only when estimates stop arriving.
+      if (!waiting_) std::printf("error_monitor: waiting for matching /sun_sensor/angles and /sun_sensor/truth...\n");
+      waiting_ = true;
     } else if (!last_est_.valid) {
       std::printf("[%s] invalid (%s) | truth a %+.5f b %+.5f deg | %lu images, %.0f%% valid\n",
                   last_est_.source.c_str(), last_est_.status.c_str(), last_truth_.alpha * kDeg, last_truth_.beta * kDeg,
@@ -81,6 +83,7 @@ class ErrorMonitor {
           std::sqrt(last_est_.covariance[3]) * kDeg, count_, valid_ ? sum_abs_a_ / valid_ : 0.0,
           valid_ ? sum_abs_b_ / valid_ : 0.0, 100.0 * valid_ / count_);
     }
+    if (count_ > 0) waiting_ = false;
     std::fflush(stdout);
     count_ = valid_ = 0;
     sum_abs_a_ = sum_abs_b_ = 0.0;
@@ -92,6 +95,7 @@ class ErrorMonitor {
   std::map<std::uint64_t, SunAngles::ConstPtr> truths_, estimates_;
   SunAngles last_est_, last_truth_;
   unsigned long count_ = 0, valid_ = 0;
+  bool waiting_ = false;
   double sum_abs_a_ = 0.0, sum_abs_b_ = 0.0;
 };
 
