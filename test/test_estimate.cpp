@@ -47,6 +47,25 @@ TEST(Screen, SaturatedImagesAreRejected) {
   EXPECT_EQ(screenImage(deep, 65535, options), "");
 }
 
+TEST(Screen, HotPixelsAreRemovedAndTheSpotKept) {
+  cv::Mat image(64, 64, CV_8UC1, cv::Scalar(0));
+  image(cv::Rect(20, 20, 6, 5)).setTo(200);  // a 30 px spot
+  image.at<std::uint8_t>(3, 3) = 255;        // hot pixels: single, and a diagonal pair
+  image.at<std::uint8_t>(50, 10) = 255;
+  image.at<std::uint8_t>(51, 11) = 90;
+  const cv::Mat cleaned = removeSmallSpots(image, 0.0, 0.0, 5);
+  EXPECT_EQ(cv::countNonZero(cleaned), 30);
+  EXPECT_EQ(cv::countNonZero(cleaned(cv::Rect(20, 20, 6, 5))), 30);
+  EXPECT_EQ(cv::countNonZero(removeSmallSpots(image, 0.0, 0.0, 0)), 33);  // disabled
+  // Raw readout: pixels at or under the threshold are background, not spots.
+  cv::Mat raw(64, 64, CV_16UC1, cv::Scalar(100));
+  raw(cv::Rect(30, 30, 4, 4)).setTo(900);
+  raw.at<std::uint16_t>(5, 5) = 4000;
+  const cv::Mat raw_cleaned = removeSmallSpots(raw, 120.0, 100.0, 5);
+  EXPECT_EQ(raw_cleaned.at<std::uint16_t>(5, 5), 100);
+  EXPECT_EQ(raw_cleaned.at<std::uint16_t>(31, 31), 900);
+}
+
 TEST(Screen, EstimatesBeyondTheEnvelopeAreRejected) {
   const SensorConfig sensor = shipped("thesis_sa");  // FOV +-4.54 deg
   ScreenOptions options;

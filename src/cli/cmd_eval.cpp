@@ -6,6 +6,7 @@
 
 #include "commands.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
+#include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/eval/crlb.h"
 #include "digital_sun_sensor/eval/evaluation.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
@@ -64,6 +65,10 @@ int runEval(int argc, char** argv) {
                 {"data", "BAG", "dataset bag(s) of /sun_sensor/image + /sun_sensor/truth", "", true, true},
                 {"estimator", "KIND:FILE", "sscnn:MODEL or centroid:CALIB", "", true, false},
                 {"csv", "FILE", "also write one CSV row per image", "", false, false},
+                {"screen", "",
+                 "apply calibration_node's screens (hot-pixel removal, saturation, predicted sigma, field "
+                 "of view; default thresholds)",
+                 "", false, false},
                 {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images (0: skip)", "200", false, false},
                 {"batch", "B", "images per estimator call", "16", false, false},
                 {"max-images", "N", "evaluate at most N images (0: all)", "0", false, false},
@@ -75,6 +80,7 @@ int runEval(int argc, char** argv) {
   std::unique_ptr<SunEstimator> estimator;
   try {
     estimator = makeEstimator(args.get("estimator"));
+    if (args.has("screen")) estimator = std::make_unique<ScreenedEstimator>(std::move(estimator), ScreenOptions{});
   } catch (const std::invalid_argument& e) {
     throw UsageError(std::string("dss eval: --estimator: ") + e.what());
   }

@@ -16,6 +16,7 @@ const char* kUsage =
     "  train      train an SSCNN model on labelled bags (checkpoints, --resume)\n"
     "  calibrate-sigma  refit the level of a model's predicted sigma on held-out labelled images\n"
     "  eval       evaluate an estimator (sscnn:MODEL | centroid:CALIB) on a labelled bag: one JSON line\n"
+    "  report     credibility report of a model beside the baseline: HTML, PNG plots, summary.json\n"
     "  bench      benchmarks printing one JSON line (bench sim|infer|train)\n";
 
 }  // namespace
@@ -30,6 +31,7 @@ int main(int argc, char** argv) {
     if (command == "train") return dss::cli::runTrain(argc, argv);
     if (command == "calibrate-sigma") return dss::cli::runCalibrateSigma(argc, argv);
     if (command == "eval") return dss::cli::runEval(argc, argv);
+    if (command == "report") return dss::cli::runReport(argc, argv);
     if (command == "--help" || command == "-h" || command == "help") {
       std::cout << kUsage;
       return 0;

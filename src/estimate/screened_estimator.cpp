@@ -1,6 +1,7 @@
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 #include <stdexcept>
 
 #include "digital_sun_sensor/model/input_spec.h"
@@ -12,6 +13,29 @@ void ScreenOptions::validate() const {
     throw std::invalid_argument("max_saturated_fraction must be in (0, 1]");
   if (!(max_sigma_deg > 0.0)) throw std::invalid_argument("max_sigma_deg must be > 0");
   if (!(fov_margin_deg >= 0.0)) throw std::invalid_argument("fov_margin_deg must be >= 0");
+  if (min_spot_px < 0) throw std::invalid_argument("min_spot_px must be >= 0");
+}
+
+cv::Mat removeSmallSpots(const cv::Mat& image, double threshold_dn, double floor_dn, int min_px) {
+  if (min_px <= 1 || image.empty() || image.channels() != 1) return image;
+  const cv::Mat lit = image > threshold_dn;
+  cv::Mat labels, stats, centroids;
+  const int n = cv::connectedComponentsWithStats(lit, labels, stats, centroids, 8, CV_32S);
+  std::vector<char> small(static_cast<std::size_t>(n), 0);
+  bool any = false;
+  for (int k = 1; k < n; ++k) any |= small[k] = stats.at<int>(k, cv::CC_STAT_AREA) < min_px;
+  if (!any) return image;
+  cv::Mat cleaned = image.clone();
+  cleaned.setTo(cv::Scalar(floor_dn), [&] {
+    cv::Mat mask(labels.size(), CV_8U);
+    for (int r = 0; r < labels.rows; ++r) {
+      const int* l = labels.ptr<int>(r);
+      auto* m = mask.ptr<std::uint8_t>(r);
+      for (int c = 0; c < labels.cols; ++c) m[c] = small[l[c]] ? 255 : 0;
+    }
+    return mask;
+  }());
+  return cleaned;
 }
 
 std::string screenImage(const cv::Mat& image, int max_code, const ScreenOptions& options) {
@@ -42,7 +66,10 @@ ScreenedEstimator::ScreenedEstimator(std::unique_ptr<SunEstimator> inner, Screen
     : inner_(std::move(inner)), options_(options) {
   if (!inner_) throw std::invalid_argument("ScreenedEstimator: no estimator");
   options_.validate();
-  max_code_ = inputSpecFor(inner_->sensor()).max_code;
+  const InputSpec spec = inputSpecFor(inner_->sensor());
+  max_code_ = spec.max_code;
+  threshold_dn_ = spec.threshold_dn;
+  black_level_dn_ = spec.black_level_dn;
 }
 
 std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>& images) {
@@ -50,9 +77,11 @@ std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>&
   std::vector<cv::Mat> passed;
   std::vector<std::size_t> where;
   for (std::size_t i = 0; i < images.size(); ++i) {
-    out[i].status = screenImage(images[i], max_code_, options_);
+    // Hot pixels go first: they would also count as saturated pixels.
+    const cv::Mat cleaned = removeSmallSpots(images[i], threshold_dn_, black_level_dn_, options_.min_spot_px);
+    out[i].status = screenImage(cleaned, max_code_, options_);
     if (out[i].status.empty()) {
-      passed.push_back(images[i]);
+      passed.push_back(cleaned);
       where.push_back(i);
     }
   }

@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/json.h"
 
 namespace dss {
 namespace {
@@ -26,22 +27,8 @@ AxisStats axisStats(std::vector<double> errors_deg) {
   return s;
 }
 
-// JSON number, or null for NaN / infinity.
-std::string number(double v) {
-  if (!std::isfinite(v)) return "null";
-  std::ostringstream os;
-  os << std::setprecision(6) << v;
-  return os.str();
-}
-
-std::string quoted(const std::string& s) {
-  std::string out = "\"";
-  for (char c : s) {
-    if (c == '"' || c == '\\') out += '\\';
-    out += c;
-  }
-  return out + "\"";
-}
+using json::number;
+using json::quoted;
 
 std::string csvField(std::string s) {
   std::replace(s.begin(), s.end(), ',', ';');

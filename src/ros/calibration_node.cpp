@@ -65,6 +65,7 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
   queue_size_ = static_cast<std::size_t>(queue_size);
   max_batch_ = static_cast<std::size_t>(max_batch);
   ScreenOptions screen;
+  screen.min_spot_px = pnh_.param("min_spot_px", screen.min_spot_px);
   screen.max_saturated_fraction = pnh_.param("max_saturated_fraction", screen.max_saturated_fraction);
   screen.max_sigma_deg = pnh_.param("max_sigma_deg", screen.max_sigma_deg);
   screen.fov_margin_deg = pnh_.param("fov_margin_deg", screen.fov_margin_deg);

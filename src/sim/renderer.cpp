@@ -60,7 +60,7 @@ int subFovClass(const SensorConfig& config, const ImageTruth& truth) {
 
 Renderer::Renderer(SensorInstance instance) : instance_(std::move(instance)) {
   const auto& c = instance_.config;
-  cache_ = std::make_unique<SpotCache>(OpticalPath::from(c), c.optics.psf_node_step_deg);
+  cache_ = SpotCache::shared(OpticalPath::from(c), c.optics.psf_node_step_deg);
   readout_ = std::make_unique<ReadoutTable>(c.noise);
   double mean_wavelength_um = 0.0, weight_sum = 0.0;
   for (std::size_t i = 0; i < c.optics.wavelengths_um.size(); ++i) {

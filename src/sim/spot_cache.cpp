@@ -1,16 +1,38 @@
 #include "digital_sun_sensor/sim/spot_cache.h"
 
-#include "digital_sun_sensor/sim/geometry.h"
-
 #include <atomic>
 #include <cmath>
+#include <sstream>
 #include <thread>
 #include <vector>
+
+#include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
 
 SpotCache::SpotCache(OpticalPath path, double node_step_deg)
     : path_(std::move(path)), step_rad_(node_step_deg * M_PI / 180.0) {}
+
+std::shared_ptr<SpotCache> SpotCache::shared(const OpticalPath& path, double node_step_deg) {
+  // Every field of the path, exactly (hex floats), and the node step.
+  std::ostringstream key;
+  key << std::hexfloat << static_cast<int>(path.mode) << ' ' << path.air_gap_um << ' ' << path.glass_um << ' '
+      << path.glass_index << ' ' << path.mask_thickness_um << ' ' << path.vignetting << ' ' << path.sun.enabled << ' '
+      << path.sun.angular_diameter_deg << ' ' << path.sun.limb_darkening_u << ' ' << path.pitch_um << ' '
+      << path.step_um << ' ' << path.grid_size << ' ' << node_step_deg;
+  for (std::size_t i = 0; i < path.wavelengths_um.size(); ++i)
+    key << ' ' << path.wavelengths_um[i] << ':' << (i < path.weights.size() ? path.weights[i] : 0.0);
+  static std::mutex registry_mutex;
+  static std::map<std::string, std::weak_ptr<SpotCache>> registry;
+  std::lock_guard<std::mutex> lock(registry_mutex);
+  std::weak_ptr<SpotCache>& slot = registry[key.str()];
+  std::shared_ptr<SpotCache> cache = slot.lock();
+  if (!cache) {
+    cache = std::make_shared<SpotCache>(path, node_step_deg);
+    slot = cache;
+  }
+  return cache;
+}
 
 std::size_t SpotCache::nodesComputed() const {
   std::lock_guard<std::mutex> lock(mutex_);
@@ -38,9 +60,9 @@ std::shared_ptr<const SpotMap> SpotCache::node(const ApertureGeometry& aperture,
     // Computed outside the lock: other nodes proceed in parallel, and threads
     // that need this one wait on the future.
     try {
-      const Eigen::Vector3d direction =
-          path_.mode == OpticsMode::kFarField ? Eigen::Vector3d::UnitZ()
-                                              : sunVectorFromAngles(ix * step_rad_, iy * step_rad_);
+      const Eigen::Vector3d direction = path_.mode == OpticsMode::kFarField
+                                            ? Eigen::Vector3d::UnitZ()
+                                            : sunVectorFromAngles(ix * step_rad_, iy * step_rad_);
       promise.set_value(std::make_shared<const SpotMap>(computeSpotMap(aperture, direction, path_)));
     } catch (...) {
       promise.set_exception(std::current_exception());

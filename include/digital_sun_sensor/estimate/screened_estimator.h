@@ -12,6 +12,10 @@
 namespace dss {
 
 struct ScreenOptions {
+  // Lit groups (8-connected pixels above the input threshold) smaller than
+  // this are removed before estimation: hot pixels and single noise spikes,
+  // which the SSCNN would otherwise take as light (0: keep everything).
+  int min_spot_px = 5;
   // More pixels than this fraction of the detector at the top code: "saturated".
   double max_saturated_fraction = 0.01;
   // A predicted 1-sigma (either axis) above this: "out_of_distribution". The
@@ -23,6 +27,11 @@ struct ScreenOptions {
   // Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
+
+// A copy of `image` without its lit groups (pixels above `threshold_dn`,
+// 8-connected) of fewer than `min_px` pixels, which are set to `floor_dn`; the
+// image itself when there are none.
+cv::Mat removeSmallSpots(const cv::Mat& image, double threshold_dn, double floor_dn, int min_px);
 
 // "saturated" or empty; `max_code` is the sensor's top digital number.
 std::string screenImage(const cv::Mat& image, int max_code, const ScreenOptions& options);
@@ -42,6 +51,7 @@ class ScreenedEstimator : public SunEstimator {
   std::unique_ptr<SunEstimator> inner_;
   ScreenOptions options_;
   int max_code_;
+  double threshold_dn_, black_level_dn_;
 };
 
 }  // namespace dss

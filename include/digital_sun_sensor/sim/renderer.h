@@ -75,7 +75,7 @@ class Renderer {
 
  private:
   SensorInstance instance_;
-  std::unique_ptr<SpotCache> cache_;
+  std::shared_ptr<SpotCache> cache_;  // SpotCache::shared: one per optical path in the process
   std::unique_ptr<ReadoutTable> readout_;
   double electron_rate_ = 0.0;
 };

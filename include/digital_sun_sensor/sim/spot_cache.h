@@ -21,6 +21,12 @@ class SpotCache {
  public:
   explicit SpotCache(OpticalPath path, double node_step_deg);
 
+  // One cache per optical path and node step in the whole process, shared by
+  // every renderer that needs it (sensors that differ only in detector,
+  // exposure or anomalies reuse each other's diffraction work); released
+  // with the last renderer holding it.
+  static std::shared_ptr<SpotCache> shared(const OpticalPath& path, double node_step_deg);
+
   struct Blend {
     std::array<std::shared_ptr<const SpotMap>, 4> maps;
     std::array<float, 4> weights{};
