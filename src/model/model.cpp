@@ -58,10 +58,9 @@ Model createModel(const SensorConfig& config, const std::string& arch_name, std:
   const auto [slope_x, slope_y] = centroidSlopes(config, m.meta.angle_scale_rad);
   m.net->initCentroidMap(slope_x, slope_y);
   // The predicted sigma starts at half a pixel of spot motion, the error of
-  // the untrained physics prior: started far from the errors' level (unit
-  // variance is ~16 log units away), training spends its steps moving the
-  // level and never learns which images are hard (measured: correlation 0.05
-  // between predicted sigma and error for the first thesis_sa model).
+  // the untrained physics prior, rather than at unit variance ~16 log units
+  // above the trained error level (the level is refitted after training
+  // anyway: train/sigma_calibration).
   if (slope_x > 0.0 && slope_y > 0.0)
     m.scaleSigma(slope_x / config.detector.width_px, slope_y / config.detector.height_px);
   return m;
