@@ -1,6 +1,8 @@
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include "digital_sun_sensor/model/input_spec.h"
@@ -15,50 +17,74 @@ void ScreenOptions::validate() const {
   if (min_spot_px < 0) throw std::invalid_argument("min_spot_px must be >= 0");
 }
 
-cv::Mat removeSmallSpots(const cv::Mat& image, double threshold_dn, double floor_dn, int min_px) {
-  if (min_px <= 1 || image.empty() || image.channels() != 1) return image;
-  // Union-find over the lit pixels only (a few hundred in a sun sensor
-  // image): about ten times cheaper than labelling the whole detector.
-  std::vector<cv::Point> lit;
-  cv::findNonZero(image > threshold_dn, lit);  // row-major order
-  if (lit.empty()) return image;
-  cv::Mat index(image.size(), CV_32S, cv::Scalar(-1));
-  for (int i = 0; i < static_cast<int>(lit.size()); ++i) index.at<int>(lit[i]) = i;
+namespace {
+
+struct Cleaned {
+  cv::Mat image;                 // without small lit groups (the input itself when it had none)
+  std::size_t saturated_px = 0;  // pixels at or above the top code in it
+};
+
+// One scan of the image: its lit pixels, the groups (8-connected, union-find
+// over the lit pixels only, a few hundred in a sun sensor image) smaller than
+// `min_px` set to `floor_dn`, and the saturated pixels counted among those kept.
+Cleaned clean(const cv::Mat& image, double threshold_dn, double floor_dn, int min_px, int max_code) {
+  InputSpec spec;
+  spec.threshold_dn = threshold_dn;
+  const std::vector<ActivePixel> lit = pixelsAboveThreshold(image, spec);  // row-major
+  const auto key = [&](int y, int x) { return static_cast<std::int64_t>(y) * image.cols + x; };
   std::vector<int> parent(lit.size());
   for (std::size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int>(i);
   auto root = [&](int i) {
     while (parent[i] != i) i = parent[i] = parent[parent[i]];
     return i;
   };
-  for (int i = 0; i < static_cast<int>(lit.size()); ++i) {
-    const cv::Point p = lit[i];
-    // The 8-neighbours already visited in row-major order.
-    for (const cv::Point d : {cv::Point(-1, -1), cv::Point(0, -1), cv::Point(1, -1), cv::Point(-1, 0)}) {
-      const cv::Point q = p + d;
-      if (q.x < 0 || q.y < 0 || q.x >= image.cols) continue;
-      const int j = index.at<int>(q);
-      if (j >= 0) parent[root(i)] = root(j);
+  if (min_px > 1) {
+    for (int i = 0; i < static_cast<int>(lit.size()); ++i) {
+      // The 8-neighbours already visited in row-major order, found by binary search.
+      for (const auto& [dy, dx] : {std::pair{-1, -1}, std::pair{-1, 0}, std::pair{-1, 1}, std::pair{0, -1}}) {
+        const int y = lit[i].y + dy, x = lit[i].x + dx;
+        if (y < 0 || x < 0 || x >= image.cols) continue;
+        const auto it = std::lower_bound(lit.begin(), lit.begin() + i, key(y, x),
+                                         [&](const ActivePixel& p, std::int64_t k) { return key(p.y, p.x) < k; });
+        if (it != lit.begin() + i && it->y == y && it->x == x)
+          parent[root(i)] = root(static_cast<int>(it - lit.begin()));
+      }
     }
   }
   std::vector<int> size(lit.size(), 0);
   for (int i = 0; i < static_cast<int>(lit.size()); ++i) ++size[root(i)];
-  cv::Mat cleaned;
+  Cleaned out{image, 0};
   for (int i = 0; i < static_cast<int>(lit.size()); ++i) {
-    if (size[root(i)] >= min_px) continue;
-    if (cleaned.empty()) cleaned = image.clone();
-    if (cleaned.depth() == CV_8U) {
-      cleaned.at<std::uint8_t>(lit[i]) = cv::saturate_cast<std::uint8_t>(floor_dn);
+    if (min_px <= 1 || size[root(i)] >= min_px) {
+      out.saturated_px += lit[i].dn >= max_code;
+      continue;
+    }
+    if (out.image.data == image.data) out.image = image.clone();
+    if (image.depth() == CV_8U) {
+      out.image.at<std::uint8_t>(lit[i].y, lit[i].x) = cv::saturate_cast<std::uint8_t>(floor_dn);
     } else {
-      cleaned.at<std::uint16_t>(lit[i]) = cv::saturate_cast<std::uint16_t>(floor_dn);
+      out.image.at<std::uint16_t>(lit[i].y, lit[i].x) = cv::saturate_cast<std::uint16_t>(floor_dn);
     }
   }
-  return cleaned.empty() ? image : cleaned;
+  // A top code at or under the threshold (never for the shipped sensors) is not among the lit pixels.
+  if (threshold_dn >= max_code) out.saturated_px = cv::countNonZero(out.image >= max_code);
+  return out;
+}
+
+std::string saturationStatus(std::size_t saturated_px, std::size_t total_px, const ScreenOptions& options) {
+  return saturated_px > options.max_saturated_fraction * total_px ? "saturated" : "";
+}
+
+}  // namespace
+
+cv::Mat removeSmallSpots(const cv::Mat& image, double threshold_dn, double floor_dn, int min_px) {
+  if (min_px <= 1 || image.empty() || image.channels() != 1) return image;
+  return clean(image, threshold_dn, floor_dn, min_px, std::numeric_limits<int>::max()).image;
 }
 
 std::string screenImage(const cv::Mat& image, int max_code, const ScreenOptions& options) {
   if (image.empty() || image.channels() != 1) return "";  // the estimator names what is wrong
-  const double saturated = cv::countNonZero(image >= max_code);
-  return saturated > options.max_saturated_fraction * image.total() ? "saturated" : "";
+  return saturationStatus(cv::countNonZero(image >= max_code), image.total(), options);
 }
 
 void screenEstimate(SunEstimate* estimate, const SensorConfig& sensor, const ScreenOptions& options) {
@@ -94,11 +120,17 @@ std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>&
   std::vector<cv::Mat> passed;
   std::vector<std::size_t> where;
   for (std::size_t i = 0; i < images.size(); ++i) {
+    const cv::Mat& image = images[i];
+    if (image.empty() || image.channels() != 1 || (image.depth() != CV_8U && image.depth() != CV_16U)) {
+      passed.push_back(image);  // the estimator names what is wrong
+      where.push_back(i);
+      continue;
+    }
     // Hot pixels go first: they would also count as saturated pixels.
-    const cv::Mat cleaned = removeSmallSpots(images[i], threshold_dn_, black_level_dn_, options_.min_spot_px);
-    out[i].status = screenImage(cleaned, max_code_, options_);
+    const Cleaned cleaned = clean(image, threshold_dn_, black_level_dn_, options_.min_spot_px, max_code_);
+    out[i].status = saturationStatus(cleaned.saturated_px, image.total(), options_);
     if (out[i].status.empty()) {
-      passed.push_back(cleaned);
+      passed.push_back(cleaned.image);
       where.push_back(i);
     }
   }

@@ -152,23 +152,6 @@ struct SweepResult {
   std::vector<double> mean_deg[2], valid[2];  // [estimator][level]
 };
 
-double meanAbsDeg(const std::vector<EvalRecord>& records) {
-  double sum = 0.0;
-  std::size_t n = 0;
-  for (const auto& r : records) {
-    if (!r.estimate.valid) continue;
-    sum += 0.5 * (std::abs(r.estimate.alpha_rad - r.alpha_true_rad) + std::abs(r.estimate.beta_rad - r.beta_true_rad));
-    ++n;
-  }
-  return n ? sum / n * kDeg : NAN;
-}
-
-double validRate(const std::vector<EvalRecord>& records) {
-  return records.empty() ? NAN : std::count_if(records.begin(), records.end(), [](const EvalRecord& r) {
-                                   return r.estimate.valid;
-                                 }) / static_cast<double>(records.size());
-}
-
 std::string jsonArray(const std::vector<double>& v) {
   std::string s = "[";
   for (std::size_t i = 0; i < v.size(); ++i) s += (i ? ", " : "") + json::number(v[i]);
@@ -294,9 +277,14 @@ std::string writeReport(const SensorConfig& sensor, SunEstimator& sscnn, SunEsti
       sweep[t].apply(c, sweep[t].levels[l]);
       const Labelled data = render(c, o.sweep_images, o.seed + 1000 * (t + 1) + l, o.sweep_sensors, o.threads);
       for (int e = 0; e < 2; ++e) {
-        const std::vector<EvalRecord> r = e < n_est ? evaluate(*estimators[e], data) : std::vector<EvalRecord>{};
-        results[t].mean_deg[e].push_back(meanAbsDeg(r));
-        results[t].valid[e].push_back(validRate(r));
+        if (e >= n_est) {
+          results[t].mean_deg[e].push_back(NAN);
+          results[t].valid[e].push_back(NAN);
+          continue;
+        }
+        const EvalSummary summary = summarize(evaluate(*estimators[e], data), estimators[e]->source(), 0.0);
+        results[t].mean_deg[e].push_back(summary.valid ? 0.5 * (summary.alpha.mean_deg + summary.beta.mean_deg) : NAN);
+        results[t].valid[e].push_back(summary.valid_rate);
       }
     }
     std::vector<plot::Series> series;
