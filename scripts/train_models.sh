@@ -16,19 +16,19 @@ DSS="${DSS:-$WS/devel/lib/digital_sun_sensor/dss}"
 [ -x "$DSS" ] || { echo "dss not built: run scripts/setup.sh" >&2; exit 1; }
 mkdir -p "$DATA" "$ROOT/models"
 
-# sensor, training images, training seed, test seed, epochs
+# sensor, training images, training seed, test seed, epochs, architecture
 recipe() {
   case "$1" in
-    thesis_sa) echo "60000 501 502 45" ;;
-    thesis_ma) echo "60000 511 512 45" ;;
-    wide_ma) echo "60000 521 522 45" ;;
+    thesis_sa) echo "60000 501 502 45 resnet18_w32" ;;
+    thesis_ma) echo "60000 511 512 22 resnet10_w16" ;;
+    wide_ma) echo "24000 521 522 10 resnet10_w16" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
 
 for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
   for s in $sensor; do
-    read -r count train_seed test_seed epochs <<<"$(recipe "$s")"
+    read -r count train_seed test_seed epochs arch <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
     model="$ROOT/models/$s.dssmodel" calib="$ROOT/models/$s.calib.yaml" ckpt="$DATA/$s.ckpt"
     [ -f "$train" ] || "$DSS" generate --sensor "$cfg" --count "$count" --seed "$train_seed" --out "$train"
@@ -36,7 +36,7 @@ for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
     if [ ! -f "$model" ]; then
       resume=()
       [ -f "$ckpt" ] && resume=(--resume "$ckpt")
-      "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --lr 5e-4 --seed 1 "${resume[@]}" \
+      "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" --lr 5e-4 --seed 1 "${resume[@]}" \
         | tee "$DATA/$s.train.json"
     fi
     "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$s.sscnn.csv" | tee "$DATA/$s.sscnn.json"

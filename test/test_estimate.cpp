@@ -1,16 +1,20 @@
 // Runtime estimation around any estimator: the screens (saturation, predicted
-// uncertainty, field of view), the estimator factory with its centroid
-// fallback, and the uncertainty-coverage arithmetic.
+// uncertainty, field of view), the SSCNN's input envelope, the estimator
+// factory with its centroid fallback, and the uncertainty-coverage arithmetic.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstdio>
+#include <opencv2/imgproc.hpp>
 #include <random>
 
 #include "digital_sun_sensor/baseline/calibration.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/eval/uncertainty.h"
+#include "digital_sun_sensor/model/input_envelope.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sscnn_estimator.h"
 
 namespace dss {
 namespace {
@@ -133,6 +137,42 @@ TEST(EstimatorFactory, FallsBackToTheCentroidBaselineAndSaysWhy) {
   EXPECT_NE(none.problem.find("no model file"), std::string::npos) << none.problem;
   EXPECT_NE(none.problem.find("no calibration file"), std::string::npos) << none.problem;
   std::remove(broken.c_str());
+}
+
+TEST(InputEnvelope, QuantilesWidenedAndUnknownAcceptsAll) {
+  std::vector<int> counts;
+  for (int i = 0; i < 1000; ++i) counts.push_back(100 + i % 50);
+  const InputEnvelope e = measureInputEnvelope(counts);
+  EXPECT_EQ(e.min_sites, 80);   // floor(100 / 1.25)
+  EXPECT_EQ(e.max_sites, 187);  // ceil(149 * 1.25)
+  EXPECT_TRUE(e.contains(80));
+  EXPECT_FALSE(e.contains(79));
+  EXPECT_FALSE(e.contains(188));
+  EXPECT_FALSE(measureInputEnvelope({}).known());
+  EXPECT_TRUE(InputEnvelope{}.contains(100000));
+}
+
+// The SSCNN estimator answers out_of_distribution when an image's lit pixels
+// lie outside the envelope recorded in the model, and estimates it otherwise.
+TEST(InputEnvelope, SscnnEstimatorFlagsImagesOutsideIt) {
+  const SensorConfig sa = shipped("thesis_sa");
+  cv::Mat image(512, 512, CV_8UC1, cv::Scalar(0));
+  cv::circle(image, {261, 240}, 6, cv::Scalar(200), cv::FILLED);  // 113 lit pixels
+  const int lit = cv::countNonZero(image);
+  Model model = loadModel(modelPath(), &sa);
+  const std::string path = ::testing::TempDir() + "dss_envelope.dssmodel";
+  auto estimateWith = [&](InputEnvelope envelope) {
+    recordInputEnvelope(model.meta, envelope);
+    saveModel(model, path);
+    return SscnnEstimator(path, &sa).estimate({image}).front();
+  };
+  const SunEstimate inside = estimateWith({lit / 2, lit * 2});
+  EXPECT_TRUE(inside.valid) << inside.status;
+  const SunEstimate outside = estimateWith({lit + 10, lit * 2});
+  EXPECT_FALSE(outside.valid);
+  EXPECT_EQ(outside.status.rfind("out_of_distribution: " + std::to_string(lit) + " lit pixels", 0), 0u)
+      << outside.status;
+  std::remove(path.c_str());
 }
 
 TEST(Uncertainty, CoverageAndScaleOfGaussianErrors) {

@@ -114,6 +114,19 @@ TEST(ModelFile, RoundTripIsBitExact) {
   std::remove(path.c_str());
 }
 
+// A constant sigma (sigma calibration's choice when the head's shape is
+// uninformative) is what every image gets, whatever its content.
+TEST(Sscnn, ConstantSigmaIsPredictedForEveryImage) {
+  Model m = createModel(shipped("thesis_sa"), "resnet10_w16", 4);
+  m.net->eval();
+  m.setConstantSigma(1.3e-5, 2.6e-5);
+  for (const Prediction& p : m.predict(imageList())) {
+    EXPECT_NEAR(std::sqrt(p.alpha_variance_rad2), 1.3e-5, 1e-10);
+    EXPECT_NEAR(std::sqrt(p.beta_variance_rad2), 2.6e-5, 1e-10);
+  }
+  EXPECT_THROW(m.setConstantSigma(0.0, 1e-5), std::invalid_argument);
+}
+
 TEST(ModelFile, BatchNormVariantKeepsItsRunningStatistics) {
   const SensorConfig c = shipped("thesis_sa");
   ArchSpec arch = archPreset("resnet10_w16", c.numSubFovClasses());

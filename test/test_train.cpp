@@ -86,10 +86,12 @@ TEST(Train, ValidationErrorFallsWellBelowUntrained) {
   const std::string bytes = readFile(path);
   EXPECT_NE(bytes.find("best_epoch"), std::string::npos);
   EXPECT_NE(bytes.find("tiny set"), std::string::npos);
-  EXPECT_NE(bytes.find("sigma_scale_alpha"), std::string::npos);
+  EXPECT_NE(bytes.find("sigma_mode"), std::string::npos);
+  EXPECT_NE(bytes.find("lit_sites_max"), std::string::npos);
 
-  // Its predicted sigma was rescaled on the validation images: 68 % of their
-  // errors now lie within 1 sigma (the factor really reached the network).
+  // Its predicted sigma (the head's, rescaled, or a constant) was calibrated on
+  // the validation images: 68 % of their errors now lie within 1 sigma (the
+  // calibration really reached the network).
   const Model saved = loadModel(path);
   std::vector<const SparseSample*> samples;
   for (const auto& s : validation.samples()) samples.push_back(&s);

@@ -1,8 +1,11 @@
 // dss calibrate-sigma: refits the level of a model's predicted uncertainty on
-// labelled held-out images (src/train/sigma_calibration) and writes the model.
+// labelled held-out images (src/train/sigma_calibration), records their input
+// envelope (model/input_envelope) and writes the model.
+#include <cmath>
 #include <iostream>
 
 #include "commands.h"
+#include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sparse/threads.h"
@@ -12,16 +15,20 @@
 namespace dss::cli {
 
 int runCalibrateSigma(int argc, char** argv) {
-  Args args("dss calibrate-sigma",
-            "Scales a model's predicted sigma per axis so that 68.27 % of the errors on the given labelled images lie "
-            "within 1 sigma (use images the model was not trained on); writes the model atomically and prints one JSON "
-            "line with the factors and the 1/2/3-sigma coverage before and after.",
-            {
-                {"model", "MODEL", "model file to calibrate", "", true, false},
-                {"data", "BAG", "labelled dataset bag(s) of the model's sensor", "", true, true},
-                {"out", "MODEL", "model file to write (may be --model)", "", true, false},
-                {"max-images", "N", "use at most N images", "5000", false, false},
-            });
+  Args args(
+      "dss calibrate-sigma",
+      "Scales a model's predicted sigma per axis so that 68.27 % of the errors on the given labelled images lie "
+      "within 1 sigma (use images the model was not trained on; where the predicted sigma's shape is worse than none, "
+      "a constant sigma per axis replaces it), and records the range of lit pixels of those "
+      "images as the model's input envelope (calibration_node flags images outside it out_of_distribution); "
+      "writes the model atomically and prints one JSON line with the factors, the envelope and the 1/2/3-sigma "
+      "coverage before and after.",
+      {
+          {"model", "MODEL", "model file to calibrate", "", true, false},
+          {"data", "BAG", "labelled dataset bag(s) of the model's sensor", "", true, true},
+          {"out", "MODEL", "model file to write (may be --model)", "", true, false},
+          {"max-images", "N", "use at most N images", "5000", false, false},
+      });
   if (!args.parse(argc, argv, 2)) return 0;
   sparse::configureThreads(1, 2);
   Model model = loadModel(args.get("model"));
@@ -36,6 +43,8 @@ int runCalibrateSigma(int argc, char** argv) {
   if (reading) reading->finish();
   std::cerr << "read " << describe(data) << "\n";
   const SigmaCalibration c = calibrateSigma(model, data.samples, max_images ? max_images : data.samples.size());
+  const InputEnvelope envelope = measureInputEnvelope(data.samples.siteCounts());
+  recordInputEnvelope(model.meta, envelope);
   saveModel(model, args.get("out"));
   std::cerr << "wrote " << args.get("out") << "\n";
   auto coverage = [](const char* name, const Coverage& cov) {
@@ -44,6 +53,10 @@ int runCalibrateSigma(int argc, char** argv) {
     return o.str();
   };
   std::cout << "{\"command\": \"calibrate-sigma\", \"model\": \"" << args.get("out") << "\", \"samples\": " << c.samples
+            << ", \"lit_sites_min\": " << envelope.min_sites << ", \"lit_sites_max\": " << envelope.max_sites
+            << ", \"sigma_mode\": \"" << (c.constant ? "constant" : "head")
+            << "\", \"constant_sigma_alpha_deg\": " << c.constant_sigma_alpha_rad * 180.0 / M_PI
+            << ", \"constant_sigma_beta_deg\": " << c.constant_sigma_beta_rad * 180.0 / M_PI
             << ", \"scale_alpha\": " << c.scale_alpha << ", \"scale_beta\": " << c.scale_beta
             << coverage("before_alpha", c.alpha_before) << coverage("before_beta", c.beta_before)
             << coverage("after_alpha", c.alpha_after) << coverage("after_beta", c.beta_after) << "}" << std::endl;

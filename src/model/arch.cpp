@@ -17,6 +17,15 @@ void ArchSpec::validate() const {
   if (centroid_pool && centroid_width < 1) fail("centroid_width must be positive");
   if (!(residual_scale > 0 && residual_scale <= 1)) fail("residual_scale must be in (0, 1]");
   if (centroid_pool && (centroid_degree < 1 || centroid_degree > 5)) fail("centroid_degree must be in 1..5");
+  if (latticeHead()) {
+    if (!centroid_pool) fail("the lattice head needs centroid_pool");
+    if (lattice_columns < 1 || lattice_rows < 1) fail("lattice_columns and lattice_rows must be positive");
+    if (!(lattice_spot_radius > 0.0)) fail("lattice_spot_radius must be positive");
+  } else if (lattice_pitch_x < 0.0 || lattice_pitch_y < 0.0) {
+    fail("lattice pitches must be positive (or both 0: off)");
+  }
+  if (geometric_prior_size != 0 && (!centroid_pool || geometric_prior_size < 4 || geometric_prior_size > 1025))
+    fail("geometric_prior_size must be 0 or 4..1025, with centroid_pool");
   for (int h : head_hidden)
     if (h < 1) fail("head_hidden sizes must be positive");
   if (num_classes < 1) fail("num_classes must be positive");

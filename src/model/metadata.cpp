@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <ctime>
 #include <sstream>
@@ -38,12 +39,66 @@ T get(const YAML::Node& parent, const std::string& key, const std::string& origi
   }
 }
 
+// Sorted distinct values, merging those within `tolerance`.
+std::vector<double> distinctValues(std::vector<double> values, double tolerance) {
+  std::sort(values.begin(), values.end());
+  std::vector<double> out;
+  for (double v : values)
+    if (out.empty() || v - out.back() > tolerance) out.push_back(v);
+  return out;
+}
+
+// Pitch of evenly spaced values centred on 0, or 0 when they are not.
+double centredPitch(const std::vector<double>& values, double tolerance) {
+  if (values.size() < 2) return 0.0;
+  const double pitch = (values.back() - values.front()) / static_cast<double>(values.size() - 1);
+  for (std::size_t i = 0; i < values.size(); ++i)
+    if (std::abs(values[i] - (values.front() + static_cast<double>(i) * pitch)) > tolerance) return 0.0;
+  return std::abs(values.front() + values.back()) > tolerance ? 0.0 : pitch;
+}
+
+// The lattice head for a full, centred lattice of apertures: whole pitches
+// from the coarse centroid when the sub-FOV classes are quadrants, from the
+// class when they are the apertures (a mask coded to tell them apart).
+void setLattice(const SensorConfig& config, ArchSpec& arch) {
+  arch.lattice_pitch_x = arch.lattice_pitch_y = 0.0;
+  arch.lattice_columns = arch.lattice_rows = 1;
+  if (config.mask.apertures.size() < 2) return;
+  arch.lattice_resolve =
+      config.subfov == SubFovType::kNearestAperture ? LatticeResolve::kClass : LatticeResolve::kCentroid;
+  constexpr double kToleranceUm = 0.05;
+  std::vector<double> xs, ys;
+  for (const auto& a : config.mask.apertures) {
+    xs.push_back(a.x_um);
+    ys.push_back(a.y_um);
+  }
+  const auto columns = distinctValues(xs, kToleranceUm), rows = distinctValues(ys, kToleranceUm);
+  if (columns.size() * rows.size() != config.mask.apertures.size() || columns.size() < 2 || rows.size() < 2) return;
+  const double pitch_x_um = centredPitch(columns, kToleranceUm), pitch_y_um = centredPitch(rows, kToleranceUm);
+  if (pitch_x_um <= 0.0 || pitch_y_um <= 0.0) return;
+  // Parallel light: spots keep the apertures' spacing on the detector.
+  const double pixel_um = config.detector.pitch_um;
+  arch.lattice_pitch_x = 2.0 * pitch_x_um / pixel_um / config.detector.width_px;
+  arch.lattice_pitch_y = 2.0 * pitch_y_um / pixel_um / config.detector.height_px;
+  arch.lattice_columns = static_cast<int>(columns.size());
+  arch.lattice_rows = static_cast<int>(rows.size());
+}
+
 }  // namespace
 
 ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch) {
   ModelMetadata m;
   m.arch = arch;
   m.arch.num_classes = config.numSubFovClasses();
+  if (m.arch.centroid_pool) {
+    setLattice(config, m.arch);
+    // Beyond ~10 deg the tan (and any refraction) bends the position-to-angle
+    // map more than a cubic absorbs to the learned terms' resolution.
+    constexpr double kWideFieldDeg = 10.0;
+    constexpr int kTableSize = 257;
+    m.arch.geometric_prior_size =
+        std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg) > kWideFieldDeg ? kTableSize : 0;
+  }
   m.arch.validate();
   m.input = inputSpecFor(config);
   m.angle_scale_rad = std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg) * kPi / 180.0;
@@ -73,6 +128,17 @@ std::string metadataToYaml(const ModelMetadata& m) {
   e << YAML::Key << "centroid_width" << YAML::Value << m.arch.centroid_width;
   e << YAML::Key << "centroid_degree" << YAML::Value << m.arch.centroid_degree;
   e << YAML::Key << "residual_scale" << YAML::Value << m.arch.residual_scale;
+  if (m.arch.latticeHead()) {
+    e << YAML::Key << "lattice_pitch_x" << YAML::Value << m.arch.lattice_pitch_x;
+    e << YAML::Key << "lattice_pitch_y" << YAML::Value << m.arch.lattice_pitch_y;
+    e << YAML::Key << "lattice_columns" << YAML::Value << m.arch.lattice_columns;
+    e << YAML::Key << "lattice_rows" << YAML::Value << m.arch.lattice_rows;
+    e << YAML::Key << "lattice_spot_radius" << YAML::Value << m.arch.lattice_spot_radius;
+    e << YAML::Key << "lattice_resolve" << YAML::Value
+      << (m.arch.lattice_resolve == LatticeResolve::kClass ? "class" : "centroid");
+  }
+  if (m.arch.geometric_prior_size > 0)
+    e << YAML::Key << "geometric_prior_size" << YAML::Value << m.arch.geometric_prior_size;
   e << YAML::Key << "head_hidden" << YAML::Value << YAML::Flow << m.arch.head_hidden;
   e << YAML::Key << "num_classes" << YAML::Value << m.arch.num_classes;
   e << YAML::EndMap;
@@ -118,6 +184,21 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   m.arch.centroid_width = get<int>(a, "centroid_width", origin, "arch.");
   m.arch.centroid_degree = get<int>(a, "centroid_degree", origin, "arch.");
   m.arch.residual_scale = get<double>(a, "residual_scale", origin, "arch.");
+  if (a["lattice_pitch_x"]) {  // absent in models without the lattice head
+    m.arch.lattice_pitch_x = get<double>(a, "lattice_pitch_x", origin, "arch.");
+    m.arch.lattice_pitch_y = get<double>(a, "lattice_pitch_y", origin, "arch.");
+    m.arch.lattice_columns = get<int>(a, "lattice_columns", origin, "arch.");
+    m.arch.lattice_rows = get<int>(a, "lattice_rows", origin, "arch.");
+    m.arch.lattice_spot_radius = get<double>(a, "lattice_spot_radius", origin, "arch.");
+    const std::string resolve =
+        a["lattice_resolve"] ? get<std::string>(a, "lattice_resolve", origin, "arch.") : "centroid";
+    if (resolve != "centroid" && resolve != "class")
+      throw ModelError(origin + ": metadata key 'arch.lattice_resolve' must be 'centroid' or 'class', not '" + resolve +
+                       "'");
+    m.arch.lattice_resolve = resolve == "class" ? LatticeResolve::kClass : LatticeResolve::kCentroid;
+  }
+  if (a["geometric_prior_size"])  // absent: the linear prior
+    m.arch.geometric_prior_size = get<int>(a, "geometric_prior_size", origin, "arch.");
   m.arch.head_hidden = get<std::vector<int>>(a, "head_hidden", origin, "arch.");
   m.arch.num_classes = get<int>(a, "num_classes", origin, "arch.");
   try {

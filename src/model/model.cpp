@@ -3,8 +3,10 @@
 #include <torch/serialize/input-archive.h>
 #include <torch/serialize/output-archive.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <optional>
 #include <sstream>
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
@@ -48,6 +50,51 @@ std::pair<double, double> centroidSlopes(const SensorConfig& config, double angl
   return {2 * step_rad / angle_scale_rad / dx, 2 * step_rad / angle_scale_rad / dy};
 }
 
+// The nominal geometry's angles (normalized) over a grid of lattice-centre
+// spot positions spanning the field of view plus 10 %, by inverting the ray
+// trace (baseline solveSun) at each node; nodes no ray reaches copy their
+// neighbour toward the centre.
+struct GeometricPrior {
+  torch::Tensor table;  // [2, size, size]
+  double extent_x = 1.0, extent_y = 1.0;
+};
+
+GeometricPrior geometricPrior(const SensorConfig& config, int size, double angle_scale_rad) {
+  MaskGeometry centre = MaskGeometry::nominalOf(config);
+  centre.apertures_um = {Eigen::Vector2d::Zero()};
+  centre.aperture_diameters_um.resize(1);
+  const double half_w = 0.5 * config.detector.width_px, half_h = 0.5 * config.detector.height_px;
+  constexpr double kDeg = 3.14159265358979323846 / 180.0;
+  const auto edge_x = centre.spotPx(0, sunVectorFromAngles(1.1 * config.fov.alpha_max_deg * kDeg, 0.0));
+  const auto edge_y = centre.spotPx(0, sunVectorFromAngles(0.0, 1.1 * config.fov.beta_max_deg * kDeg));
+  if (!edge_x || !edge_y) throw ModelError("geometric prior: no ray reaches the detector at the edge of the field");
+  GeometricPrior prior;
+  prior.extent_x = std::abs(edge_x->x()) / half_w;
+  prior.extent_y = std::abs(edge_y->y()) / half_h;
+  prior.table = torch::zeros({2, size, size}, torch::kFloat);
+  auto t = prior.table.accessor<float, 3>();
+  const int mid = size / 2;
+  auto node = [&](int k, double extent) { return extent * (2.0 * k / (size - 1) - 1.0); };
+  // Centre outward, so that a node no ray reaches has its inner neighbour set.
+  std::vector<int> order(static_cast<std::size_t>(size));
+  for (int k = 0; k < size; ++k) order[static_cast<std::size_t>(k)] = k;
+  std::sort(order.begin(), order.end(), [&](int a, int b) { return std::abs(a - mid) < std::abs(b - mid); });
+  for (int row : order)
+    for (int col : order) {
+      const Eigen::Vector2d px(node(col, prior.extent_x) * half_w, node(row, prior.extent_y) * half_h);
+      const SunSolution sun = solveSun(centre, {SpotObservation{0, px}});
+      if (sun.ok) {
+        t[0][row][col] = static_cast<float>(sun.alpha_rad / angle_scale_rad);
+        t[1][row][col] = static_cast<float>(sun.beta_rad / angle_scale_rad);
+      } else {
+        const int inner_row = row + (row < mid) - (row > mid), inner_col = col + (col < mid) - (col > mid);
+        t[0][row][col] = t[0][inner_row][inner_col];
+        t[1][row][col] = t[1][inner_row][inner_col];
+      }
+    }
+  return prior;
+}
+
 }  // namespace
 
 Model createModel(const SensorConfig& config, const std::string& arch_name, std::uint64_t seed) {
@@ -57,6 +104,18 @@ Model createModel(const SensorConfig& config, const std::string& arch_name, std:
   m.net = std::make_shared<SscnnNetImpl>(m.meta.arch);
   const auto [slope_x, slope_y] = centroidSlopes(config, m.meta.angle_scale_rad);
   m.net->initCentroidMap(slope_x, slope_y);
+  if (m.meta.arch.geometric_prior_size > 0) {
+    const GeometricPrior prior = geometricPrior(config, m.meta.arch.geometric_prior_size, m.meta.angle_scale_rad);
+    m.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
+  }
+  if (m.meta.arch.latticeHead() && m.meta.arch.lattice_resolve == LatticeResolve::kClass) {
+    // Classes are the apertures (SubFovType::kNearestAperture), in config order.
+    std::vector<std::array<double, 2>> offsets;
+    for (const auto& a : config.mask.apertures)
+      offsets.push_back({2.0 * a.x_um / config.detector.pitch_um / config.detector.width_px,
+                         2.0 * a.y_um / config.detector.pitch_um / config.detector.height_px});
+    m.net->initLatticeClasses(offsets);
+  }
   // The predicted sigma starts at half a pixel of spot motion, the error of
   // the untrained physics prior, rather than at unit variance ~16 log units
   // above the trained error level (the level is refitted after training
@@ -151,6 +210,12 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
   // Accessors, not per-element indexing: each tensor index or item() would allocate.
   const auto a = angles.accessor<double, 2>(), v = log_var.accessor<double, 2>(), c = probs.accessor<double, 2>();
   const auto counts = sites.countsPerImage();
+  torch::Tensor resolved_class;
+  std::optional<torch::TensorAccessor<std::int64_t, 1>> resolved;
+  if (out.resolved_class.defined()) {
+    resolved_class = out.resolved_class.to(torch::kLong).contiguous();
+    resolved.emplace(resolved_class.accessor<std::int64_t, 1>());
+  }
   const double s = meta.angle_scale_rad;
   std::vector<Prediction> result(static_cast<std::size_t>(angles.size(0)));
   for (std::size_t b = 0; b < result.size(); ++b) {
@@ -165,6 +230,10 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
         p.subfov_class = static_cast<int>(k);
         p.class_probability = c[i][k];
       }
+    if (resolved) {
+      p.subfov_class = static_cast<int>((*resolved)[i]);
+      p.class_probability = c[i][(*resolved)[i]];
+    }
     p.active_sites = counts[b];
   }
   return result;
@@ -202,6 +271,21 @@ void Model::scaleSigma(double alpha_factor, double beta_factor) {
     return;
   }
   throw ModelError("scaleSigma: the network has no variance.bias parameter");
+}
+
+void Model::setConstantSigma(double alpha_sigma_rad, double beta_sigma_rad) {
+  if (!(alpha_sigma_rad > 0.0 && beta_sigma_rad > 0.0 && std::isfinite(alpha_sigma_rad) &&
+        std::isfinite(beta_sigma_rad)))
+    throw std::invalid_argument("setConstantSigma: sigmas must be finite and positive");
+  torch::NoGradGuard no_grad;
+  const double s = meta.angle_scale_rad;
+  for (auto& p : net->named_parameters()) {
+    if (p.key() == "variance.weight") p.value().zero_();
+    if (p.key() == "variance.bias") {
+      p.value()[0] = 2.0 * std::log(alpha_sigma_rad / s);  // log variance of the normalized angle
+      p.value()[1] = 2.0 * std::log(beta_sigma_rad / s);
+    }
+  }
 }
 
 }  // namespace dss

@@ -112,8 +112,8 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   }
   int features = 2 * channels;  // average + max pooled
   if (arch.centroid_pool) {
-    centroid_conv1_ = register_module(
-        "centroid_conv1", std::make_shared<SparseConvImpl>(1, arch.centroid_width, 3, 1, true));
+    centroid_conv1_ =
+        register_module("centroid_conv1", std::make_shared<SparseConvImpl>(1, arch.centroid_width, 3, 1, true));
     centroid_conv2_ =
         register_module("centroid_conv2", std::make_shared<SparseConvImpl>(arch.centroid_width, 1, 1, 1, true));
     const int monomials = (arch.centroid_degree + 1) * (arch.centroid_degree + 2) / 2 - 1;
@@ -133,7 +133,16 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   variance_ = register_module("variance", torch::nn::Linear(features, 2));
   // The classes get their own branch: in a shared MLP the angle NLL's gradients,
   // which grow as the variance shrinks, drown the cross-entropy's.
-  const int head_in = 2 * channels + (arch.centroid_pool ? 2 : 0), class_hidden = arch.head_hidden.back();
+  const bool class_resolved = arch.latticeHead() && arch.lattice_resolve == LatticeResolve::kClass;
+  if (class_resolved)  // per class: its aperture's spot offset from the lattice centre (initLatticeClasses)
+    lattice_class_offsets_ = register_buffer("lattice_class_offsets", torch::zeros({arch.num_classes, 2}));
+  if (arch.geometric_prior_size > 0) {
+    geometric_prior_ =
+        register_buffer("geometric_prior", torch::zeros({1, 2, arch.geometric_prior_size, arch.geometric_prior_size}));
+    geometric_prior_extent_ = register_buffer("geometric_prior_extent", torch::ones({2}));
+  }
+  const int head_in = 2 * channels + (arch.centroid_pool ? 2 : 0) + (class_resolved ? 4 : 0);
+  const int class_hidden = arch.head_hidden.back();
   class_hidden_ = register_module("class_hidden", torch::nn::Linear(head_in, class_hidden));
   class_output_ = register_module("class_output", torch::nn::Linear(class_hidden, arch.num_classes));
   torch::NoGradGuard no_grad;
@@ -154,6 +163,53 @@ void SscnnNetImpl::initCentroidMap(double slope_x, double slope_y) {
   centroid_prior_[1] = slope_y;
 }
 
+void SscnnNetImpl::initLatticeClasses(const std::vector<std::array<double, 2>>& offsets) {
+  if (!lattice_class_offsets_.defined()) return;
+  if (static_cast<std::int64_t>(offsets.size()) != lattice_class_offsets_.size(0))
+    throw std::invalid_argument("initLatticeClasses: " + std::to_string(offsets.size()) + " offsets for " +
+                                std::to_string(lattice_class_offsets_.size(0)) + " classes");
+  torch::NoGradGuard no_grad;
+  for (std::size_t c = 0; c < offsets.size(); ++c)
+    for (int axis = 0; axis < 2; ++axis)
+      lattice_class_offsets_[static_cast<std::int64_t>(c)][axis] = offsets[c][static_cast<std::size_t>(axis)];
+}
+
+void SscnnNetImpl::initGeometricPrior(const torch::Tensor& table, double extent_x, double extent_y) {
+  if (!geometric_prior_.defined()) return;
+  if (table.sizes() != geometric_prior_.sizes().slice(1))
+    throw std::invalid_argument("initGeometricPrior: the table must be [2, size, size] of the architecture");
+  if (!(extent_x > 0.0 && extent_y > 0.0)) throw std::invalid_argument("initGeometricPrior: extents must be positive");
+  torch::NoGradGuard no_grad;
+  geometric_prior_.copy_(table.unsqueeze(0));
+  geometric_prior_extent_[0] = extent_x;
+  geometric_prior_extent_[1] = extent_y;
+}
+
+torch::Tensor SscnnNetImpl::priorAngles(const torch::Tensor& position) const {
+  if (!geometric_prior_.defined()) return position * centroid_prior_;
+  // Catmull-Rom over the 4 x 4 nearest nodes: exact for quadratics, unlike
+  // torch's bicubic grid_sample (a = -0.75), which misses even a linear map by
+  // up to 15 % of a node spacing.
+  const std::int64_t size = geometric_prior_.size(2);
+  const torch::Tensor u = (position / geometric_prior_extent_ + 1.0) * (0.5 * static_cast<double>(size - 1));  // [B, 2]
+  const torch::Tensor base = u.detach().floor().clamp(1, static_cast<double>(size - 3));
+  const torch::Tensor t = u - base;            // within [0, 1) inside the table, extrapolated beyond it
+  auto weights = [](const torch::Tensor& x) {  // [B] -> [B, 4], nodes -1, 0, 1, 2
+    const auto x2 = x * x, x3 = x2 * x;
+    return torch::stack(
+        {0.5 * (-x3 + 2 * x2 - x), 0.5 * (3 * x3 - 5 * x2 + 2), 0.5 * (-3 * x3 + 4 * x2 + x), 0.5 * (x3 - x2)}, 1);
+  };
+  const torch::Tensor wx = weights(t.select(1, 0)), wy = weights(t.select(1, 1));
+  const torch::Tensor offsets = torch::arange(-1, 3, base.options().dtype(torch::kLong));
+  const torch::Tensor cols = base.select(1, 0).to(torch::kLong).unsqueeze(1) + offsets;  // [B, 4]
+  const torch::Tensor rows = base.select(1, 1).to(torch::kLong).unsqueeze(1) + offsets;
+  const torch::Tensor flat = (rows.unsqueeze(2) * size + cols.unsqueeze(1)).view({-1});  // [B * 16]
+  const torch::Tensor w = (wy.unsqueeze(2) * wx.unsqueeze(1)).view({-1, 16});            // [B, 16]
+  const torch::Tensor table = geometric_prior_.view({2, -1});
+  const torch::Tensor nodes = table.index_select(1, flat).view({2, -1, 16});  // [2, B, 16]
+  return (nodes * w.unsqueeze(0)).sum(2).t();
+}
+
 std::int64_t SscnnNetImpl::parameterCount() const {
   std::int64_t n = 0;
   for (const auto& p : parameters()) n += p.numel();
@@ -171,23 +227,113 @@ torch::Tensor SscnnNetImpl::monomials(const torch::Tensor& centroid) const {
   return torch::cat(terms, 1);
 }
 
-SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const torch::Tensor& centroid) {
+SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& spots,
+                               const torch::Tensor& known_classes) {
   // Pooled features of a network without batch norm grow with depth and
   // brightness; normalized, the MLP starts in its working range.
   const torch::Tensor normed = head_norm_->forward(pooled);
-  torch::Tensor h = centroid.defined() ? torch::cat({normed, centroid}, 1) : normed;
   SscnnOutput result;
-  result.class_logits = class_output_->forward(torch::silu(class_hidden_->forward(h)));
+  const bool class_resolved = arch_.latticeHead() && arch_.lattice_resolve == LatticeResolve::kClass;
+  torch::Tensor position = spots.centroid;
+  if (spots.phase.defined() && !class_resolved) position = resolveLattice(spots, {}, {});
+  // The class branch reads the position when it is known before the class,
+  // else the coarse centroid and the lattice phase (as cos, sin).
+  torch::Tensor class_in = position.defined() ? torch::cat({normed, position}, 1) : normed;
+  if (class_resolved) {
+    const auto turns =
+        spots.phase *
+        torch::tensor({2.0 * M_PI / arch_.lattice_pitch_x, 2.0 * M_PI / arch_.lattice_pitch_y}, spots.phase.options());
+    class_in = torch::cat({class_in, torch::cos(turns), torch::sin(turns)}, 1);
+  }
+  result.class_logits = class_output_->forward(torch::silu(class_hidden_->forward(class_in)));
+  if (class_resolved) {
+    position = resolveLattice(spots, result.class_logits, known_classes);
+    // The class that goes with the position: the aperture whose spot is
+    // nearest the detector centre (the classifier only had to be right to
+    // half a pitch).
+    torch::NoGradGuard no_grad;
+    const auto spot_positions = position.detach().unsqueeze(1) + lattice_class_offsets_.unsqueeze(0);  // [B, C, 2]
+    result.resolved_class = spot_positions.pow(2).sum(2).argmin(1);
+  }
+  torch::Tensor h = position.defined() ? torch::cat({normed, position}, 1) : normed;
   for (auto& layer : mlp_) h = torch::silu(layer->forward(h));
   result.angles = arch_.residual_scale * output_->forward(h);
-  if (centroid.defined())
-    result.angles = result.angles + centroid * centroid_prior_ +
-                    arch_.residual_scale * centroid_skip_->forward(monomials(centroid));
+  if (position.defined())
+    result.angles =
+        result.angles + priorAngles(position) + arch_.residual_scale * centroid_skip_->forward(monomials(position));
   result.log_variance = variance_->forward(h.detach());
   return result;
 }
 
-SscnnOutput SscnnNetImpl::forward(const SparseTensor& input) {
+SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const torch::Tensor& xy,
+                                                  const torch::Tensor& index, std::int64_t batch) const {
+  auto weighted_sum = [&](const torch::Tensor& values) {
+    return torch::zeros({batch, values.size(1)}, values.options()).index_add(0, index, values);
+  };
+  SpotReading reading;
+  reading.centroid = weighted_sum(w * xy) / (weighted_sum(w) + 1e-6);
+  if (!arch_.latticeHead()) return reading;
+  std::vector<torch::Tensor> phase(2);
+  for (int axis = 0; axis < 2; ++axis) {
+    const double pitch = axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y;
+    // Phase of the spot positions modulo the pitch: a circular mean, the same
+    // whichever spots are on the detector (exact for symmetric spots).
+    const torch::Tensor angle = xy.slice(1, axis, axis + 1) * (2.0 * M_PI / pitch);
+    const torch::Tensor sums = weighted_sum(torch::cat({w * torch::cos(angle), w * torch::sin(angle)}, 1));
+    phase[axis] = torch::atan2(sums.slice(1, 1, 2), sums.slice(1, 0, 1)) * (pitch / (2.0 * M_PI));
+  }
+  reading.phase = torch::cat(phase, 1);
+  return reading;
+}
+
+torch::Tensor SscnnNetImpl::resolveLattice(const SpotReading& spots, const torch::Tensor& class_logits,
+                                           const torch::Tensor& known_classes) const {
+  torch::Tensor class_estimate;  // lattice shift the classes imply, [B, 2]
+  if (known_classes.defined() && class_logits.defined()) {
+    class_estimate = -lattice_class_offsets_.index_select(0, known_classes.to(torch::kLong));
+  } else if (class_logits.defined()) {
+    torch::NoGradGuard no_grad;
+    // Expected over the class probabilities: between two neighbouring classes
+    // the estimate stays within half a pitch of the truth.
+    class_estimate = -torch::softmax(class_logits.detach(), 1).matmul(lattice_class_offsets_);
+  }
+  std::vector<torch::Tensor> shift(2);
+  for (int axis = 0; axis < 2; ++axis) {
+    const double pitch = axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y;
+    const int count = axis == 0 ? arch_.lattice_columns : arch_.lattice_rows;
+    const torch::Tensor phase = spots.phase.slice(1, axis, axis + 1);
+    // Candidate shifts: the phase plus whole pitches (with an even count the
+    // spots sit half a pitch off the lattice centre).
+    const double half_pitch = count % 2 == 0 ? 0.5 : 0.0;
+    const int reach = static_cast<int>(std::ceil(std::max(1.5, 0.5 * count * pitch) / pitch)) + 1;
+    const torch::Tensor steps = (torch::arange(-reach, reach + 1, phase.options()) + half_pitch) * pitch;  // [K]
+    torch::Tensor chosen_step;
+    {
+      torch::NoGradGuard no_grad;  // a discrete choice: gradients flow through the phase only
+      const torch::Tensor candidates = phase.detach() + steps.unsqueeze(0);  // [B, K]
+      torch::Tensor mismatch;
+      if (class_estimate.defined()) {
+        mismatch = (candidates - class_estimate.slice(1, axis, axis + 1)).abs();
+      } else {
+        // Each candidate predicts the centroid of the spots it leaves on the
+        // detector (fading out over a spot radius at the edge); the one
+        // nearest the measured centroid wins.
+        const torch::Tensor offsets = (torch::arange(count, phase.options()) - 0.5 * (count - 1)) * pitch;  // [n]
+        const torch::Tensor lattice = candidates.unsqueeze(2) + offsets.view({1, 1, -1});                   // [B, K, n]
+        const torch::Tensor visible = ((1.0 - lattice.abs()) / arch_.lattice_spot_radius + 0.5).clamp(0.0, 1.0);
+        const torch::Tensor visible_total = visible.sum(2);
+        const torch::Tensor predicted = (visible * lattice).sum(2) / visible_total.clamp_min(1e-6);
+        mismatch = (predicted - spots.centroid.slice(1, axis, axis + 1).detach()).abs() +
+                   (visible_total < 1e-3).to(predicted.scalar_type()) * 1e6;
+      }
+      chosen_step = steps.index_select(0, mismatch.argmin(1)).unsqueeze(1);
+    }
+    shift[axis] = phase + chosen_step;
+  }
+  return torch::cat(shift, 1);
+}
+
+SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor& known_classes) {
   SparseTensor x = stem_->forward(input);
   x = x.with(torch::relu(x.features));
   if (arch_.stem_max_pool) {
@@ -197,21 +343,17 @@ SscnnOutput SscnnNetImpl::forward(const SparseTensor& input) {
   for (auto& block : blocks_) x = block->forward(x);
   const torch::Tensor pooled =
       torch::cat({sparse::globalAvgPool(x.features, *x.sites), sparse::globalMaxPool(x.features, *x.sites)}, 1);
-  torch::Tensor centroid;
+  SpotReading spots;
   if (arch_.centroid_pool) {
     // Learned weights w >= 0 per input site from the local pixel values only
     // (translation-equivariant: no position-dependent bias); centroid =
     // sum(w xy) / sum(w) per image.
     SparseTensor c = centroid_conv1_->forward(input.with(input.features.slice(1, 0, 1).contiguous()));
     c = centroid_conv2_->forward(c.with(torch::relu(c.features)));
-    const torch::Tensor w = torch::softplus(c.features);
-    const torch::Tensor index = sparse::batchIndex(*input.sites);
-    const auto batch = input.sites->batchSize();
-    auto num = torch::zeros({batch, 2}, w.options()).index_add(0, index, w * input.features.slice(1, 1, 3));
-    auto den = torch::zeros({batch, 1}, w.options()).index_add(0, index, w);
-    centroid = num / (den + 1e-6);
+    spots = readSpots(torch::softplus(c.features), input.features.slice(1, 1, 3), sparse::batchIndex(*input.sites),
+                      input.sites->batchSize());
   }
-  return head(pooled, centroid);
+  return head(pooled, spots, known_classes);
 }
 
 SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
@@ -219,7 +361,7 @@ SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
   if (arch_.stem_max_pool) x = F::max_pool2d(x, F::MaxPool2dFuncOptions(3).stride(2).padding(1));
   for (auto& block : blocks_) x = block->forwardDense(x);
   const torch::Tensor pooled = torch::cat({x.mean({2, 3}), x.amax({2, 3})}, 1);
-  torch::Tensor centroid;
+  SpotReading spots;
   if (arch_.centroid_pool) {
     // Inactive pixels (zero in every channel) hold no features and get no
     // weight, as in the submanifold branch.
@@ -227,9 +369,13 @@ SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
     const auto active = (value != 0).to(value.scalar_type());
     const auto c = torch::relu(centroid_conv1_->forwardDense(value)) * active;
     const auto w = torch::softplus(centroid_conv2_->forwardDense(c)) * active;
-    centroid = (w * input.slice(1, 1, 3)).sum({2, 3}) / (w.sum({2, 3}) + 1e-6);
+    // Every pixel as a site (inactive ones weigh 0), in the sparse branch's layout.
+    const auto batch = input.size(0), pixels = input.size(2) * input.size(3);
+    const auto index = torch::arange(batch, torch::TensorOptions().dtype(torch::kLong)).repeat_interleave(pixels);
+    spots = readSpots(w.permute({0, 2, 3, 1}).reshape({-1, 1}),
+                      input.slice(1, 1, 3).permute({0, 2, 3, 1}).reshape({-1, 2}), index, batch);
   }
-  return head(pooled, centroid);
+  return head(pooled, spots, {});
 }
 
 }  // namespace dss

@@ -2,6 +2,7 @@
 
 #include <stdexcept>
 
+#include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 
 namespace dss {
@@ -9,12 +10,14 @@ namespace dss {
 struct SscnnEstimator::Impl {
   Model model;
   SensorConfig sensor;
+  InputEnvelope envelope;
 };
 
 SscnnEstimator::SscnnEstimator(const std::string& model_path, const SensorConfig* expected)
     : impl_(std::make_unique<Impl>()) {
   impl_->model = loadModel(model_path, expected);
   impl_->sensor = parseSensorConfig(impl_->model.meta.sensor_yaml, model_path + " (sensor)");
+  impl_->envelope = inputEnvelopeOf(impl_->model.meta);
 }
 
 SscnnEstimator::~SscnnEstimator() = default;
@@ -45,7 +48,14 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
     e.covariance = {p.alpha_variance_rad2, 0.0, 0.0, p.beta_variance_rad2};
     e.subfov_class = p.subfov_class;
     e.valid = p.active_sites > 0;
-    if (!e.valid) e.status = "no_sun";
+    if (!e.valid) {
+      e.status = "no_sun";
+    } else if (!impl_->envelope.contains(p.active_sites)) {
+      e.valid = false;
+      e.status = "out_of_distribution: " + std::to_string(p.active_sites) +
+                 " lit pixels (training: " + std::to_string(impl_->envelope.min_sites) + ".." +
+                 std::to_string(impl_->envelope.max_sites) + ")";
+    }
   }
   return out;
 }

@@ -40,10 +40,43 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
   c.alpha_after = measureCoverage(za);
   c.beta_after = measureCoverage(zb);
 
-  model.scaleSigma(c.scale_alpha, c.scale_beta);
+  // The same 1-sigma level from one sigma per axis: where the head's shape
+  // does not follow the error (its 2 and 3 sigma coverage further from the
+  // Gaussian's than a constant's), the constant is the honest answer.
+  auto constant = [](std::vector<ErrorAndSigma> z) {
+    for (auto& s : z) s.sigma_rad = 1.0;
+    const double sigma = sigmaScaleForCoverage(z);
+    for (auto& s : z) s.sigma_rad = sigma;
+    return std::make_pair(sigma, measureCoverage(z));
+  };
+  auto shapeError = [](const Coverage& a, const Coverage& b) {
+    return std::abs(a.within[1] - 0.9545) + std::abs(a.within[2] - 0.9973) + std::abs(b.within[1] - 0.9545) +
+           std::abs(b.within[2] - 0.9973);
+  };
+  const auto [sigma_alpha, constant_alpha] = constant(za);
+  const auto [sigma_beta, constant_beta] = constant(zb);
   YAML::Node metrics = YAML::Load(model.meta.metrics_yaml);
-  metrics["sigma_scale_alpha"] = c.scale_alpha;
-  metrics["sigma_scale_beta"] = c.scale_beta;
+  if (sigma_alpha > 0 && sigma_beta > 0 &&
+      shapeError(constant_alpha, constant_beta) < shapeError(c.alpha_after, c.beta_after)) {
+    c.constant = true;
+    c.alpha_after = constant_alpha;
+    c.beta_after = constant_beta;
+    c.constant_sigma_alpha_rad = sigma_alpha;
+    c.constant_sigma_beta_rad = sigma_beta;
+    model.setConstantSigma(sigma_alpha, sigma_beta);
+    metrics["sigma_mode"] = "constant";
+    metrics["sigma_constant_alpha_rad"] = sigma_alpha;
+    metrics["sigma_constant_beta_rad"] = sigma_beta;
+  } else {
+    model.scaleSigma(c.scale_alpha, c.scale_beta);
+    metrics["sigma_mode"] = "head";
+    // The factors since training: a recalibration multiplies into the record.
+    auto total = [&](const char* key, double factor) {
+      return metrics[key] ? metrics[key].as<double>() * factor : factor;
+    };
+    metrics["sigma_scale_alpha"] = total("sigma_scale_alpha", c.scale_alpha);
+    metrics["sigma_scale_beta"] = total("sigma_scale_beta", c.scale_beta);
+  }
   metrics["sigma_calibration_samples"] = c.samples;
   model.meta.metrics_yaml = YAML::Dump(metrics);
   return c;

@@ -15,6 +15,7 @@
 
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sparse/threads.h"
@@ -218,9 +219,12 @@ struct Trainer::Impl {
     for (auto& group : optimizer->param_groups()) static_cast<torch::optim::AdamWOptions&>(group.options()).lr(lr);
     last.learning_rate = lr;
     optimizer->zero_grad();
-    const auto out = model.net->forward(input);
+    // The true classes resolve a class-resolved lattice while training, so the
+    // angles learn from the right pitch before the classifier has learned.
+    const auto class_tensor = torch::tensor(classes);
+    const auto out = model.net->forward(input, class_tensor);
     const double class_weight = sensor.numSubFovClasses() > 1 ? options.class_loss_weight : 0.0;
-    const auto loss = trainingLoss(out, target, torch::tensor(classes), model.meta.arch.residual_scale, class_weight);
+    const auto loss = trainingLoss(out, target, class_tensor, model.meta.arch.residual_scale, class_weight);
     loss.backward();
     optimizer->step();
     return loss.item<double>();
@@ -498,6 +502,7 @@ void Trainer::saveModel(const std::string& path, const std::string& data_descrip
     // The level of the predicted sigma, fitted on the held-out images (on
     // this copy: the live network keeps training if the run goes on).
     calibrateSigma(best, m.validation, m.options.validation_max);
+    recordInputEnvelope(best.meta, measureInputEnvelope(m.train.siteCounts()));
     out = best;
   }
   ::dss::saveModel(out, path);

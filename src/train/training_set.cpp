@@ -22,6 +22,15 @@ void TrainingSet::add(const cv::Mat& image, double alpha_rad, double beta_rad, i
   samples_.push_back(std::move(s));
 }
 
+std::vector<int> TrainingSet::siteCounts() const {
+  std::vector<int> counts;
+  counts.reserve(samples_.size());
+  for (const auto& s : samples_)
+    counts.push_back(
+        static_cast<int>(std::min<std::size_t>(s.pixels.size(), static_cast<std::size_t>(spec_.max_sites))));
+  return counts;
+}
+
 std::size_t TrainingSet::memoryBytes() const {
   std::size_t bytes = samples_.capacity() * sizeof(SparseSample);
   for (const auto& s : samples_) bytes += s.pixels.capacity() * 4 + s.dn.capacity() * 2;

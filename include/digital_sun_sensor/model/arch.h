@@ -7,6 +7,11 @@
 
 namespace dss {
 
+// How the lattice head takes whole pitches: from the coarse centroid (spots
+// leaving the detector tell the lattice apart), or from the sub-FOV class
+// (masks coded so that the classifier tells the apertures apart).
+enum class LatticeResolve { kCentroid, kClass };
+
 struct ArchSpec {
   std::string name;
   int input_channels = 3;  // pixel value, x, y
@@ -24,9 +29,24 @@ struct ArchSpec {
   // is about the learning rate whatever the gradient's size, so their scale
   // sets the finest step the optimizer takes on the angles.
   double residual_scale = 0.02;
+  // Masks whose apertures form a regular, centred lattice of columns x rows:
+  // the head reads the spot shift modulo the lattice pitch (circular mean of
+  // the weighted site positions, normalized units) and adds whole pitches
+  // (LatticeResolve). A plain centroid jumps by a fraction of the pitch
+  // whenever a spot leaves the detector. Pitch 0: off (single aperture, or no
+  // lattice).
+  double lattice_pitch_x = 0.0, lattice_pitch_y = 0.0;
+  int lattice_columns = 1, lattice_rows = 1;
+  LatticeResolve lattice_resolve = LatticeResolve::kCentroid;
+  double lattice_spot_radius = 0.03;  // normalized; spots fade out over it at the detector edge
+  // Wide fields of view: the physics prior maps the position to the angles
+  // through a size x size table of the nominal geometry (refraction, tan)
+  // instead of a slope, so the learned terms stay small corrections. 0: slope.
+  int geometric_prior_size = 0;
   std::vector<int> head_hidden{256, 256};
   int num_classes = 4;  // sub-FOV classes of the sensor
 
+  bool latticeHead() const { return lattice_pitch_x > 0.0 && lattice_pitch_y > 0.0; }
   // Throws std::invalid_argument naming the bad field.
   void validate() const;
 };

@@ -41,6 +41,9 @@ struct Model {
   // Multiplies the predicted standard deviations by these factors (through
   // the variance head's bias; train/sigma_calibration fits them).
   void scaleSigma(double alpha_factor, double beta_factor);
+  // Makes the predicted standard deviations these constants (radians) for
+  // every image (train/sigma_calibration, when the head's shape is uninformative).
+  void setConstantSigma(double alpha_sigma_rad, double beta_sigma_rad);
 };
 
 // A freshly initialised model for a sensor; seeds torch's generator with `seed`.

@@ -1,7 +1,8 @@
 // The SSCNN: a sparse ResNet backbone (strided sparse stem, sparse max pool,
 // submanifold residual stages with strided downsampling) and a head that reads
 // per-image average and max pooled features plus a learned intensity-weighted
-// centroid of the input sites, and outputs (alpha, beta), a log-variance per
+// centroid of the input sites (for a lattice of apertures: the lattice shift,
+// see ArchSpec::lattice_pitch_x), and outputs (alpha, beta), a log-variance per
 // axis and sub-FOV class logits. Outputs are normalized; Model decodes them.
 #pragma once
 
@@ -9,6 +10,9 @@
 #include <torch/nn/modules/batchnorm.h>
 #include <torch/nn/modules/linear.h>
 #include <torch/nn/modules/normalization.h>
+
+#include <array>
+#include <vector>
 
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/sparse/sparse_tensor.h"
@@ -49,12 +53,17 @@ struct SscnnOutput {
   torch::Tensor angles;        // [B, 2] (alpha, beta) / angle scale
   torch::Tensor log_variance;  // [B, 2] of the normalized angles
   torch::Tensor class_logits;  // [B, num_classes]
+  // Lattice head resolved by the class: the class that goes with the
+  // resolved position, [B] (undefined otherwise: argmax of the logits).
+  torch::Tensor resolved_class;
 };
 
 class SscnnNetImpl : public torch::nn::Module {
  public:
   explicit SscnnNetImpl(const ArchSpec& arch);
-  SscnnOutput forward(const sparse::SparseTensor& input);
+  // `known_classes` [B] (training only): the true sub-FOV classes, which then
+  // resolve a class-resolved lattice head in place of the predicted ones.
+  SscnnOutput forward(const sparse::SparseTensor& input, const torch::Tensor& known_classes = {});
   // The same layers and weights evaluated densely (torch::conv2d over the whole
   // [B, 3, H, W] image), for the sparse-vs-dense benchmark.
   SscnnOutput forwardDense(const torch::Tensor& input);
@@ -63,10 +72,33 @@ class SscnnNetImpl : public torch::nn::Module {
   // the active sites and maps linearly to the angles with these slopes
   // (normalized units), so training starts at a pinhole-model estimate.
   void initCentroidMap(double slope_x, double slope_y);
+  // Lattice head resolved by the class: per class, the normalized offset of
+  // its aperture's spot from the lattice centre (no-op for other heads).
+  void initLatticeClasses(const std::vector<std::array<double, 2>>& offsets);
+  // Wide fields: the angles of the nominal geometry as a table over the
+  // position [2, size, size] (normalized angles) spanning +-extent (normalized
+  // position) per axis, read by Catmull-Rom interpolation instead of the linear
+  // prior (no-op unless arch.geometric_prior_size > 0).
+  void initGeometricPrior(const torch::Tensor& table, double extent_x, double extent_y);
   std::int64_t parameterCount() const;
 
  private:
-  SscnnOutput head(const torch::Tensor& pooled, const torch::Tensor& centroid);
+  // Spot read-out per image from site weights w [N, 1], positions xy [N, 2]
+  // and image index [N]: the weighted centroid [B, 2] and, with the lattice
+  // head, the phase of the positions modulo the lattice pitch [B, 2].
+  struct SpotReading {
+    torch::Tensor centroid, phase;
+  };
+  SpotReading readSpots(const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& index,
+                        std::int64_t batch) const;
+  // Lattice shift (position of the lattice centre's spot) [B, 2]: the phase
+  // plus the whole pitches the coarse centroid (no logits) or the class
+  // probabilities (or, when given, the known classes) imply.
+  torch::Tensor resolveLattice(const SpotReading& spots, const torch::Tensor& class_logits,
+                               const torch::Tensor& known_classes) const;
+  SscnnOutput head(const torch::Tensor& pooled, const SpotReading& spots, const torch::Tensor& known_classes);
+  // Normalized angles of the physics prior at a position [B, 2].
+  torch::Tensor priorAngles(const torch::Tensor& position) const;
   torch::Tensor monomials(const torch::Tensor& centroid) const;
   ArchSpec arch_;
   std::shared_ptr<SparseConvImpl> stem_, centroid_conv1_, centroid_conv2_;
@@ -75,7 +107,9 @@ class SscnnNetImpl : public torch::nn::Module {
   std::vector<torch::nn::Linear> mlp_;
   torch::nn::Linear output_{nullptr}, variance_{nullptr}, centroid_skip_{nullptr}, class_hidden_{nullptr},
       class_output_{nullptr};
-  torch::Tensor centroid_prior_;  // buffer: angle per unit centroid, per axis
+  torch::Tensor centroid_prior_;         // buffer: angle per unit centroid, per axis
+  torch::Tensor lattice_class_offsets_;  // buffer [num_classes, 2] (lattice head resolved by the class)
+  torch::Tensor geometric_prior_, geometric_prior_extent_;  // buffers [1, 2, size, size], [2]
 };
 
 }  // namespace dss

@@ -4,7 +4,9 @@
 // initial value, further than the learning rate carries it. One factor per
 // axis on the predicted sigma, fitted on held-out images so that 68.27 % of
 // errors lie within 1 sigma, fixes the level; it is folded into the variance
-// head's bias, so the model file stays self-contained. Torch-free header.
+// head's bias, so the model file stays self-contained. Where the head's shape
+// is worse than none (2 and 3 sigma coverage further from the Gaussian's than a
+// constant sigma's), the head is replaced by a constant per axis. Torch-free header.
 #pragma once
 
 #include <cstddef>
@@ -18,11 +20,14 @@ struct Model;
 
 struct SigmaCalibration {
   std::size_t samples = 0;
-  double scale_alpha = 1.0, scale_beta = 1.0;  // factors applied to the predicted sigma
-  Coverage alpha_before, beta_before, alpha_after, beta_after;
+  double scale_alpha = 1.0, scale_beta = 1.0;  // factors on the head's sigma for 68.27 % coverage
+  // A constant sigma per axis replaced the head's (its shape did not follow the error).
+  bool constant = false;
+  double constant_sigma_alpha_rad = 0.0, constant_sigma_beta_rad = 0.0;
+  Coverage alpha_before, beta_before, alpha_after, beta_after;  // after: of what the model now predicts
 };
 
-// Fits and applies the factors on (at most `max_samples`, evenly spaced)
+// Fits and applies the factors (or the constant) on (at most `max_samples`, evenly spaced)
 // samples of `data`, which must be encoded with the model's input spec, and
 // records them in the model's metrics. Throws std::invalid_argument when
 // `data` is empty or its spec differs from the model's.

@@ -33,6 +33,8 @@ class TrainingSet {
   const std::vector<SparseSample>& samples() const { return samples_; }
   std::size_t size() const { return samples_.size(); }
   std::size_t memoryBytes() const;
+  // Active sites each sample gives the network (its pixels, at most spec.max_sites).
+  std::vector<int> siteCounts() const;
 
   // Deterministic split: a seeded shuffle, the first `validation_fraction`
   // (at least one sample when there are two or more) goes to validation.
@@ -46,11 +48,11 @@ class TrainingSet {
 // Rates of the augmentation applied to training samples (each independently
 // per sample), so that one model tolerates a range of sensor conditions.
 struct AugmentationConfig {
-  double gain_probability = 0.0;   // scale every DN by a random gain...
-  double gain_sigma = 0.0;         // ...log-normal with this sigma (exposure/irradiance changes)
-  double noise_probability = 0.0;  // add Gaussian noise...
-  double noise_sigma_dn = 0.0;     // ...with sigma drawn uniformly up to this
-  double threshold_probability = 0.0;  // raise the threshold...
+  double gain_probability = 0.0;        // scale every DN by a random gain...
+  double gain_sigma = 0.0;              // ...log-normal with this sigma (exposure/irradiance changes)
+  double noise_probability = 0.0;       // add Gaussian noise...
+  double noise_sigma_dn = 0.0;          // ...with sigma drawn uniformly up to this
+  double threshold_probability = 0.0;   // raise the threshold...
   double threshold_max_fraction = 0.0;  // ...by up to this fraction of the sample's peak
   double dropout_probability = 0.0;     // blank a random disk (debris)...
   double dropout_max_radius_px = 0.0;   // ...of up to this radius on a random active pixel

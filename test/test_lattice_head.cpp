@@ -1,0 +1,144 @@
+// The SSCNN head for multi-aperture masks (lattice phase + whole pitches) and
+// the geometric prior of wide fields, checked untrained on images of ideal
+// spots drawn where the nominal geometry puts them.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <opencv2/core.hpp>
+
+#include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sparse_input.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sparse/threads.h"
+
+namespace dss {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+SensorConfig shipped(const std::string& name) {
+  return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml");
+}
+
+// Gaussian spots (sigma 2.5 px, cut at 20 % of the peak like an on-chip
+// threshold) at positions in px from the detector centre.
+cv::Mat drawSpots(const SensorConfig& c, const std::vector<Eigen::Vector2d>& spots_px) {
+  cv::Mat image(c.detector.height_px, c.detector.width_px, CV_8UC1, cv::Scalar(0));
+  const double cx = 0.5 * (c.detector.width_px - 1), cy = 0.5 * (c.detector.height_px - 1), sigma = 2.5;
+  for (const auto& s : spots_px)
+    for (int row = static_cast<int>(cy + s.y()) - 8; row <= static_cast<int>(cy + s.y()) + 8; ++row)
+      for (int col = static_cast<int>(cx + s.x()) - 8; col <= static_cast<int>(cx + s.x()) + 8; ++col) {
+        if (row < 0 || col < 0 || row >= image.rows || col >= image.cols) continue;
+        const double dx = col - cx - s.x(), dy = row - cy - s.y();
+        const double g = std::exp(-(dx * dx + dy * dy) / (2 * sigma * sigma));
+        if (g >= 0.2) image.at<std::uint8_t>(row, col) = static_cast<std::uint8_t>(std::lround(255 * g));
+      }
+  return image;
+}
+
+TEST(LatticeHead, ArchitectureFollowsTheMask) {
+  const ArchSpec sa = createModel(shipped("thesis_sa"), "resnet10_w16").meta.arch;
+  EXPECT_FALSE(sa.latticeHead());
+  EXPECT_EQ(sa.geometric_prior_size, 0);
+
+  const ArchSpec ma = createModel(shipped("thesis_ma"), "resnet10_w16").meta.arch;
+  ASSERT_TRUE(ma.latticeHead());
+  EXPECT_NEAR(ma.lattice_pitch_x, 2.0 * 265.05 / 1.55 / 512, 1e-9);
+  EXPECT_EQ(ma.lattice_columns, 3);
+  EXPECT_EQ(ma.lattice_rows, 3);
+  EXPECT_EQ(ma.lattice_resolve, LatticeResolve::kCentroid);
+  EXPECT_EQ(ma.geometric_prior_size, 0);
+
+  const Model wide = createModel(shipped("wide_ma"), "resnet10_w16");
+  ASSERT_TRUE(wide.meta.arch.latticeHead());
+  EXPECT_EQ(wide.meta.arch.lattice_columns, 7);
+  EXPECT_EQ(wide.meta.arch.lattice_resolve, LatticeResolve::kClass);
+  EXPECT_GT(wide.meta.arch.geometric_prior_size, 0);
+
+  // The model file keeps the head and its buffers.
+  const Model loaded = deserializeModel(serializeModel(wide), "wide.dssmodel");
+  EXPECT_EQ(loaded.meta.arch.lattice_resolve, LatticeResolve::kClass);
+  EXPECT_EQ(loaded.meta.arch.geometric_prior_size, wide.meta.arch.geometric_prior_size);
+  EXPECT_DOUBLE_EQ(loaded.meta.arch.lattice_pitch_y, wide.meta.arch.lattice_pitch_y);
+  const cv::Mat image = drawSpots(shipped("wide_ma"), {{10.3, -20.7}, {171.6, -20.7}});
+  EXPECT_EQ(wide.predict({image})[0].alpha_rad, loaded.predict({image})[0].alpha_rad);
+}
+
+// A plain centroid of a 3 x 3 lattice jumps by a fraction of the pitch each
+// time a column of spots leaves the detector; the lattice shift does not: the
+// untrained head (physics prior only) stays on one line through the origin.
+TEST(LatticeHead, ShiftStaysContinuousWhileSpotsLeaveTheDetector) {
+  sparse::configureThreads(1, 1);
+  const SensorConfig c = shipped("thesis_ma");
+  const Model m = createModel(c, "resnet10_w16");
+  const double pitch_px = 265.05 / 1.55, edge_px = 256.0;
+  std::vector<double> shifts;
+  std::vector<cv::Mat> images;
+  for (double s = -245.0; s <= 245.0; s += 6.1) {
+    std::vector<Eigen::Vector2d> spots;
+    bool cut = false;
+    for (int i = -1; i <= 1; ++i)
+      for (int j = -1; j <= 1; ++j) {
+        const Eigen::Vector2d p(s + i * pitch_px, 23.4 + j * pitch_px);
+        if (std::abs(std::abs(p.x()) - edge_px) < 9.0) cut = true;
+        if (std::abs(p.x()) < edge_px) spots.push_back(p);
+      }
+    if (cut) continue;  // spots cut by the edge bias any estimate: not this test's subject
+    shifts.push_back(s);
+    images.push_back(drawSpots(c, spots));
+  }
+  ASSERT_GT(shifts.size(), 40u);
+  const auto predictions = m.predict(images);
+  double sxy = 0, sxx = 0;
+  for (std::size_t k = 0; k < shifts.size(); ++k) {
+    sxy += shifts[k] * predictions[k].alpha_rad;
+    sxx += shifts[k] * shifts[k];
+  }
+  const double slope = sxy / sxx;
+  EXPECT_LT(slope, 0.0);  // the spot moves against the sun
+  for (std::size_t k = 0; k < shifts.size(); ++k)
+    EXPECT_NEAR(predictions[k].alpha_rad, slope * shifts[k], 0.003 * kDeg) << "shift " << shifts[k] << " px";
+}
+
+// wide_ma: whole pitches from the class (here the true one, as in training)
+// and the geometric prior (refraction in the window, tan) give the angles of
+// the nominal geometry over +-55 deg, untrained, to the pixelation of the drawn
+// spots (1 px is about 0.26 deg here).
+TEST(LatticeHead, ClassResolvedLatticeWithGeometricPriorRecoversWideAngles) {
+  sparse::configureThreads(1, 1);
+  const SensorConfig c = shipped("wide_ma");
+  const Model m = createModel(c, "resnet10_w16");
+  const MaskGeometry nominal = MaskGeometry::nominalOf(c);
+  const std::vector<std::pair<double, double>> angles_deg{{0.3, -0.2},   {20.0, 5.0},    {-35.0, 41.0},
+                                                          {55.0, -12.0}, {-50.0, -50.0}, {8.0, 54.0}};
+  std::vector<cv::Mat> images;
+  std::vector<std::int64_t> classes;
+  for (const auto& [alpha, beta] : angles_deg) {
+    const Eigen::Vector3d sun = sunVectorFromAngles(alpha * kDeg, beta * kDeg);
+    std::vector<Eigen::Vector2d> spots;
+    int nearest = -1;
+    for (int a = 0; a < nominal.numApertures(); ++a) {
+      const auto p = nominal.spotPx(a, sun);
+      if (!p || !nominal.insideDetector(*p, 0.0)) continue;
+      if (nearest < 0 || p->squaredNorm() < nominal.spotPx(nearest, sun)->squaredNorm()) nearest = a;
+      // Spots cut by the detector edge bias any estimate: drawn whole or not at all.
+      if (nominal.insideDetector(*p, 9.0)) spots.push_back(*p);
+    }
+    ASSERT_GE(nearest, 0);
+    images.push_back(drawSpots(c, spots));
+    classes.push_back(nearest);
+  }
+  torch::NoGradGuard no_grad;
+  const auto input = encodeImages(images, m.meta.input);
+  const auto out = m.net->forward(input, torch::tensor(classes));
+  const auto predictions = m.decode(out, *input.sites);
+  for (std::size_t k = 0; k < images.size(); ++k) {
+    EXPECT_NEAR(predictions[k].alpha_rad / kDeg, angles_deg[k].first, 0.01) << "image " << k;
+    EXPECT_NEAR(predictions[k].beta_rad / kDeg, angles_deg[k].second, 0.01) << "image " << k;
+    EXPECT_EQ(predictions[k].subfov_class, classes[k]) << "image " << k;
+  }
+}
+
+}  // namespace
+}  // namespace dss
