@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # Reproduces the shipped models in models/ and README's accuracy table: for each
 # sensor, a training bag and a fresh-seed test bag (continuous random angles over
-# the whole field of view), `dss train`, then `dss eval` of the model and of the
-# centroid baseline (calibrated on the first 1000 training images, shipped as
-# models/<sensor>.calib.yaml: calibration_node's fallback) on the same test
-# bag. Bags go to DATA_DIR (default .ws/models_data), never into git.
+# the whole field of view), `dss train`, `dss calibrate-sigma` on a third fresh
+# bag, then `dss eval` of the model and of the centroid baseline (calibrated on
+# the first 1000 training images, shipped as models/<sensor>.calib.yaml:
+# calibration_node's fallback) on the same test bag. Bags go to DATA_DIR (default .ws/models_data), never into git.
 #   scripts/train_models.sh [SENSOR...]     (default: thesis_sa thesis_ma wide_ma)
 # Bags and finished models already present are reused; an interrupted training
 # resumes from its checkpoint. Results: DATA_DIR/<sensor>.*.json.
@@ -16,28 +16,32 @@ DSS="${DSS:-$WS/devel/lib/digital_sun_sensor/dss}"
 [ -x "$DSS" ] || { echo "dss not built: run scripts/setup.sh" >&2; exit 1; }
 mkdir -p "$DATA" "$ROOT/models"
 
-# sensor, training images, training seed, test seed, epochs, architecture
+# sensor, training images, training seed, test seed, epochs, architecture, sigma-calibration seed
 recipe() {
   case "$1" in
-    thesis_sa) echo "60000 501 502 45 resnet18_w32" ;;
-    thesis_ma) echo "60000 511 512 22 resnet10_w16" ;;
-    wide_ma) echo "24000 521 522 10 resnet10_w16" ;;
+    thesis_sa) echo "60000 501 502 45 resnet18_w32 503" ;;
+    thesis_ma) echo "60000 511 512 22 resnet10_w16 513" ;;
+    wide_ma) echo "24000 521 522 10 resnet10_w16 523" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
 
 for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
   for s in $sensor; do
-    read -r count train_seed test_seed epochs arch <<<"$(recipe "$s")"
+    read -r count train_seed test_seed epochs arch sigma_seed <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
     model="$ROOT/models/$s.dssmodel" calib="$ROOT/models/$s.calib.yaml" ckpt="$DATA/$s.ckpt"
+    sigma="$DATA/$s.sigma.bag"
     [ -f "$train" ] || "$DSS" generate --sensor "$cfg" --count "$count" --seed "$train_seed" --out "$train"
     [ -f "$test" ] || "$DSS" generate --sensor "$cfg" --count 10000 --seed "$test_seed" --out "$test"
+    [ -f "$sigma" ] || "$DSS" generate --sensor "$cfg" --count 5000 --seed "$sigma_seed" --out "$sigma"
     if [ ! -f "$model" ]; then
       resume=()
       [ -f "$ckpt" ] && resume=(--resume "$ckpt")
       "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" --lr 5e-4 --seed 1 "${resume[@]}" \
         | tee "$DATA/$s.train.json"
+      # sigma (level, or a constant per axis) and the input envelope from fresh images
+      "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" | tee "$DATA/$s.sigma.json"
     fi
     "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$s.sscnn.csv" | tee "$DATA/$s.sscnn.json"
     "$DSS" calibrate --data "$train" --max-images 1000 --out "$calib" > "$DATA/$s.calibrate.json"
