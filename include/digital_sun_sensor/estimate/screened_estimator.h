@@ -18,8 +18,10 @@ struct ScreenOptions {
   int min_spot_px = 5;
   // More pixels than this fraction of the detector at the top code: "saturated".
   double max_saturated_fraction = 0.01;
-  // A predicted 1-sigma (either axis) above this: "out_of_distribution". The
-  // SSCNN's variance head grows on inputs unlike its training images.
+  // A predicted 1-sigma (either axis) above this: "out_of_distribution". Only
+  // a model whose variance head grows on inputs unlike its training images
+  // trips it; with a constant sigma (sigma_mode: constant) the SSCNN's input
+  // envelope does that work (model/input_envelope).
   double max_sigma_deg = 0.01;
   // An estimate further than this beyond the config's field of view: "outside_fov".
   double fov_margin_deg = 0.25;
