@@ -72,7 +72,11 @@ TEST(Pipeline, EstimatesMatchTruthVectorAndTf) {
     for (const auto& [stamp, e] : estimates) matched += truths.count(stamp);
     if (matched >= static_cast<std::size_t>(min_estimates) + 5) break;
   }
-  ros::WallDuration(0.5).sleep();  // let the latest tf and vectors arrive
+  // Take no new estimates, then let the vectors and tf of those taken arrive
+  // (each is published just after its angles: an estimate taken in the last
+  // spin could otherwise lack its vector).
+  angles_sub.shutdown();
+  ros::WallDuration(0.5).sleep();
   ros::spinOnce();
 
   std::lock_guard<std::mutex> lock(mutex);
