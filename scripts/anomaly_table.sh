@@ -6,12 +6,9 @@
 # row per anomaly type.
 #   scripts/anomaly_table.sh [SENSOR]   (default: thesis_sa; bags in .ws/models_data, reused)
 set -euo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-WS="${DSS_WS:-$ROOT/.ws}"
+source "$(dirname "$0")/dss_env.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
-DSS="${DSS:-$WS/devel/lib/digital_sun_sensor/dss}"
 sensor="${1:-thesis_sa}"
-[ -x "$DSS" ] || { echo "dss not built: run scripts/setup.sh" >&2; exit 1; }
 mkdir -p "$DATA"
 echo "| anomaly | SSCNN mean α / β (deg) | max α / β | valid | centroid mean α / β (deg) | max α / β | valid |"
 echo "|---|---|---|---|---|---|---|"

@@ -7,13 +7,10 @@
 # Bags already present are reused. Prints one markdown row per case and keeps
 # every JSON line in OUT_DIR/results.jsonl (appended).
 set -euo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-WS="${DSS_WS:-$ROOT/.ws}"
+source "$(dirname "$0")/dss_env.sh"
 OUT="${1:-$WS/baseline_tables}"
 ONLY=("${@:2}")
-DSS="${DSS:-$WS/devel/lib/digital_sun_sensor/dss}"
 mkdir -p "$OUT"
-[ -x "$DSS" ] || { echo "dss not built: run scripts/setup.sh" >&2; exit 1; }
 
 # case name, sensor, sampling, seed, calibration count, test count, extra args...
 run_case() {

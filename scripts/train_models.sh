@@ -9,11 +9,8 @@
 # Bags and finished models already present are reused; an interrupted training
 # resumes from its checkpoint. Results: DATA_DIR/<sensor>.*.json.
 set -euo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-WS="${DSS_WS:-$ROOT/.ws}"
+source "$(dirname "$0")/dss_env.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
-DSS="${DSS:-$WS/devel/lib/digital_sun_sensor/dss}"
-[ -x "$DSS" ] || { echo "dss not built: run scripts/setup.sh" >&2; exit 1; }
 mkdir -p "$DATA" "$ROOT/models"
 
 # sensor, training images, training seed, test seed, epochs, architecture, sigma-calibration seed

@@ -7,11 +7,8 @@
 # so that both numbers stand beside the published table on the same work.
 #   scripts/train_published.sh     (bags in DATA_DIR, default .ws/models_data)
 set -euo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-WS="${DSS_WS:-$ROOT/.ws}"
+source "$(dirname "$0")/dss_env.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
-DSS="${DSS:-$WS/devel/lib/digital_sun_sensor/dss}"
-[ -x "$DSS" ] || { echo "dss not built: run scripts/setup.sh" >&2; exit 1; }
 mkdir -p "$DATA"
 PROTOCOL=(--sensor "$ROOT/config/sensors/thesis_sa.yaml" --sampling grid --seed 531
   --set optics.mode=far_field --set optics.sun_disk.enabled=false --set optics.vignetting=false)

@@ -108,7 +108,7 @@ Model createModel(const SensorConfig& config, const std::string& arch_name, std:
     const GeometricPrior prior = geometricPrior(config, m.meta.arch.geometric_prior_size, m.meta.angle_scale_rad);
     m.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
   }
-  if (m.meta.arch.latticeHead() && m.meta.arch.lattice_resolve == LatticeResolve::kClass) {
+  if (m.meta.arch.classResolvedLattice()) {
     // Classes are the apertures (SubFovType::kNearestAperture), in config order.
     std::vector<std::array<double, 2>> offsets;
     for (const auto& a : config.mask.apertures)

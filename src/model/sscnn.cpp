@@ -133,7 +133,7 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   variance_ = register_module("variance", torch::nn::Linear(features, 2));
   // The classes get their own branch: in a shared MLP the angle NLL's gradients,
   // which grow as the variance shrinks, drown the cross-entropy's.
-  const bool class_resolved = arch.latticeHead() && arch.lattice_resolve == LatticeResolve::kClass;
+  const bool class_resolved = arch.classResolvedLattice();
   if (class_resolved)  // per class: its aperture's spot offset from the lattice centre (initLatticeClasses)
     lattice_class_offsets_ = register_buffer("lattice_class_offsets", torch::zeros({arch.num_classes, 2}));
   if (arch.geometric_prior_size > 0) {
@@ -233,7 +233,7 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
   // brightness; normalized, the MLP starts in its working range.
   const torch::Tensor normed = head_norm_->forward(pooled);
   SscnnOutput result;
-  const bool class_resolved = arch_.latticeHead() && arch_.lattice_resolve == LatticeResolve::kClass;
+  const bool class_resolved = arch_.classResolvedLattice();
   torch::Tensor position = spots.centroid;
   if (spots.phase.defined() && !class_resolved) position = resolveLattice(spots, {}, {});
   // The class branch reads the position when it is known before the class,

@@ -47,6 +47,7 @@ struct ArchSpec {
   int num_classes = 4;  // sub-FOV classes of the sensor
 
   bool latticeHead() const { return lattice_pitch_x > 0.0 && lattice_pitch_y > 0.0; }
+  bool classResolvedLattice() const { return latticeHead() && lattice_resolve == LatticeResolve::kClass; }
   // Throws std::invalid_argument naming the bad field.
   void validate() const;
 };
