@@ -3,7 +3,8 @@
 # the pinhole only (no solar disk, no vignetting), spot centres on the integer
 # pixels of the 513 x 513 grid in a seeded shuffle; training and test images
 # are disjoint grid positions (--offset). Trains models/thesis_sa_published.dssmodel
-# and evaluates it beside a centroid baseline calibrated on the same protocol,
+# and evaluates it beside a centroid baseline calibrated on the same protocol
+# (models/thesis_sa_published.calib.yaml; both appear in dss report),
 # so that both numbers stand beside the published table on the same work.
 #   scripts/train_published.sh     (bags in DATA_DIR, default .ws/models_data)
 set -euo pipefail
@@ -13,7 +14,8 @@ mkdir -p "$DATA"
 PROTOCOL=(--sensor "$ROOT/config/sensors/thesis_sa.yaml" --sampling grid --seed 531
   --set optics.mode=far_field --set optics.sun_disk.enabled=false --set optics.vignetting=false)
 train="$DATA/published.train.bag" test="$DATA/published.test.bag" sigma="$DATA/published.sigma.bag"
-model="$ROOT/models/thesis_sa_published.dssmodel" ckpt="$DATA/published.ckpt" calib="$DATA/published.calib.yaml"
+model="$ROOT/models/thesis_sa_published.dssmodel" ckpt="$DATA/published.ckpt"
+calib="$ROOT/models/thesis_sa_published.calib.yaml"
 [ -f "$train" ] || "$DSS" generate "${PROTOCOL[@]}" --count 30000 --out "$train"
 [ -f "$test" ] || "$DSS" generate "${PROTOCOL[@]}" --count 10000 --offset 30000 --out "$test"
 [ -f "$sigma" ] || "$DSS" generate "${PROTOCOL[@]}" --count 5000 --offset 40000 --out "$sigma"

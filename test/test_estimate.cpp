@@ -150,6 +150,12 @@ TEST(InputEnvelope, QuantilesWidenedAndUnknownAcceptsAll) {
   EXPECT_FALSE(e.contains(188));
   EXPECT_FALSE(measureInputEnvelope({}).known());
   EXPECT_TRUE(InputEnvelope{}.contains(100000));
+  // Training envelope widened by the sigma-calibration images'.
+  const InputEnvelope both = covering(e, InputEnvelope{120, 400});
+  EXPECT_EQ(both.min_sites, 80);
+  EXPECT_EQ(both.max_sites, 400);
+  EXPECT_EQ(covering(InputEnvelope{}, e).max_sites, 187);
+  EXPECT_EQ(covering(e, InputEnvelope{}).min_sites, 80);
 }
 
 // The SSCNN estimator answers out_of_distribution when an image's lit pixels

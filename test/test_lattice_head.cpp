@@ -21,12 +21,15 @@ SensorConfig shipped(const std::string& name) {
   return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml");
 }
 
-// Gaussian spots (sigma 2.5 px, cut at 20 % of the peak like an on-chip
-// threshold) at positions in px from the detector centre.
-cv::Mat drawSpots(const SensorConfig& c, const std::vector<Eigen::Vector2d>& spots_px) {
+// Gaussian spots (sigma 2.5 px unless given per spot, cut at 20 % of the peak
+// like an on-chip threshold) at positions in px from the detector centre.
+cv::Mat drawSpots(const SensorConfig& c, const std::vector<Eigen::Vector2d>& spots_px,
+                  const std::vector<double>& sigmas_px = {}) {
   cv::Mat image(c.detector.height_px, c.detector.width_px, CV_8UC1, cv::Scalar(0));
-  const double cx = 0.5 * (c.detector.width_px - 1), cy = 0.5 * (c.detector.height_px - 1), sigma = 2.5;
-  for (const auto& s : spots_px)
+  const double cx = 0.5 * (c.detector.width_px - 1), cy = 0.5 * (c.detector.height_px - 1);
+  for (std::size_t k = 0; k < spots_px.size(); ++k) {
+    const Eigen::Vector2d& s = spots_px[k];
+    const double sigma = sigmas_px.empty() ? 2.5 : sigmas_px[k];
     for (int row = static_cast<int>(cy + s.y()) - 8; row <= static_cast<int>(cy + s.y()) + 8; ++row)
       for (int col = static_cast<int>(cx + s.x()) - 8; col <= static_cast<int>(cx + s.x()) + 8; ++col) {
         if (row < 0 || col < 0 || row >= image.rows || col >= image.cols) continue;
@@ -34,6 +37,7 @@ cv::Mat drawSpots(const SensorConfig& c, const std::vector<Eigen::Vector2d>& spo
         const double g = std::exp(-(dx * dx + dy * dy) / (2 * sigma * sigma));
         if (g >= 0.2) image.at<std::uint8_t>(row, col) = static_cast<std::uint8_t>(std::lround(255 * g));
       }
+  }
   return image;
 }
 
@@ -53,12 +57,12 @@ TEST(LatticeHead, ArchitectureFollowsTheMask) {
   const Model wide = createModel(shipped("wide_ma"), "resnet10_w16");
   ASSERT_TRUE(wide.meta.arch.latticeHead());
   EXPECT_EQ(wide.meta.arch.lattice_columns, 7);
-  EXPECT_EQ(wide.meta.arch.lattice_resolve, LatticeResolve::kClass);
+  EXPECT_EQ(wide.meta.arch.lattice_resolve, LatticeResolve::kCode);  // its diameters code the apertures
   EXPECT_GT(wide.meta.arch.geometric_prior_size, 0);
 
   // The model file keeps the head and its buffers.
   const Model loaded = deserializeModel(serializeModel(wide), "wide.dssmodel");
-  EXPECT_EQ(loaded.meta.arch.lattice_resolve, LatticeResolve::kClass);
+  EXPECT_EQ(loaded.meta.arch.lattice_resolve, LatticeResolve::kCode);
   EXPECT_EQ(loaded.meta.arch.geometric_prior_size, wide.meta.arch.geometric_prior_size);
   EXPECT_DOUBLE_EQ(loaded.meta.arch.lattice_pitch_y, wide.meta.arch.lattice_pitch_y);
   const cv::Mat image = drawSpots(shipped("wide_ma"), {{10.3, -20.7}, {171.6, -20.7}});
@@ -101,11 +105,13 @@ TEST(LatticeHead, ShiftStaysContinuousWhileSpotsLeaveTheDetector) {
     EXPECT_NEAR(predictions[k].alpha_rad, slope * shifts[k], 0.003 * kDeg) << "shift " << shifts[k] << " px";
 }
 
-// wide_ma: whole pitches from the class (here the true one, as in training)
+// wide_ma: the phase of the whole spots, whole pitches from the aperture code
+// (spot sizes against the diameters) or from the true class as in training,
 // and the geometric prior (refraction in the window, tan) give the angles of
-// the nominal geometry over +-55 deg, untrained, to the pixelation of the drawn
-// spots (1 px is about 0.26 deg here).
-TEST(LatticeHead, ClassResolvedLatticeWithGeometricPriorRecoversWideAngles) {
+// the nominal geometry over +-55 deg, untrained, to the pixelation of the
+// drawn spots (1 px is about 0.26 deg here; spots of four sizes: 0.02 deg),
+// although the edge cuts some of them.
+TEST(LatticeHead, CodedLatticeWithGeometricPriorRecoversWideAngles) {
   sparse::configureThreads(1, 1);
   const SensorConfig c = shipped("wide_ma");
   const Model m = createModel(c, "resnet10_w16");
@@ -117,26 +123,35 @@ TEST(LatticeHead, ClassResolvedLatticeWithGeometricPriorRecoversWideAngles) {
   for (const auto& [alpha, beta] : angles_deg) {
     const Eigen::Vector3d sun = sunVectorFromAngles(alpha * kDeg, beta * kDeg);
     std::vector<Eigen::Vector2d> spots;
+    std::vector<double> sigmas;  // spot size in proportion to the aperture's diameter
     int nearest = -1;
     for (int a = 0; a < nominal.numApertures(); ++a) {
       const auto p = nominal.spotPx(a, sun);
-      if (!p || !nominal.insideDetector(*p, 0.0)) continue;
-      if (nearest < 0 || p->squaredNorm() < nominal.spotPx(nearest, sun)->squaredNorm()) nearest = a;
-      // Spots cut by the detector edge bias any estimate: drawn whole or not at all.
-      if (nominal.insideDetector(*p, 9.0)) spots.push_back(*p);
+      if (!p) continue;
+      if (nominal.insideDetector(*p, 0.0) &&
+          (nearest < 0 || p->squaredNorm() < nominal.spotPx(nearest, sun)->squaredNorm()))
+        nearest = a;
+      // Spots cut by the edge (centres up to 4 px beyond it) are drawn too:
+      // the phase comes from the whole ones (lattice_whole_spot_phase).
+      if (!nominal.insideDetector(*p, -4.0)) continue;
+      spots.push_back(*p);
+      sigmas.push_back(2.5 * c.mask.apertures[static_cast<std::size_t>(a)].diameter_um / 38.0);
     }
     ASSERT_GE(nearest, 0);
-    images.push_back(drawSpots(c, spots));
+    images.push_back(drawSpots(c, spots, sigmas));
     classes.push_back(nearest);
   }
   torch::NoGradGuard no_grad;
   const auto input = encodeImages(images, m.meta.input);
-  const auto out = m.net->forward(input, torch::tensor(classes));
-  const auto predictions = m.decode(out, *input.sites);
-  for (std::size_t k = 0; k < images.size(); ++k) {
-    EXPECT_NEAR(predictions[k].alpha_rad / kDeg, angles_deg[k].first, 0.01) << "image " << k;
-    EXPECT_NEAR(predictions[k].beta_rad / kDeg, angles_deg[k].second, 0.01) << "image " << k;
-    EXPECT_EQ(predictions[k].subfov_class, classes[k]) << "image " << k;
+  for (const bool classes_known : {true, false}) {
+    const auto out = classes_known ? m.net->forward(input, torch::tensor(classes)) : m.net->forward(input);
+    const auto predictions = m.decode(out, *input.sites);
+    for (std::size_t k = 0; k < images.size(); ++k) {
+      SCOPED_TRACE("image " + std::to_string(k) + (classes_known ? ", true class" : ", aperture code"));
+      EXPECT_NEAR(predictions[k].alpha_rad / kDeg, angles_deg[k].first, 0.02);
+      EXPECT_NEAR(predictions[k].beta_rad / kDeg, angles_deg[k].second, 0.02);
+      EXPECT_EQ(predictions[k].subfov_class, classes[k]);
+    }
   }
 }
 

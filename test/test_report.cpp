@@ -10,6 +10,7 @@
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/eval/report.h"
+#include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
 #include "digital_sun_sensor/sparse/threads.h"
 
@@ -32,7 +33,17 @@ TEST(Report, SmallReportHasEveryPlotAndFigure) {
   options.sweep_images = 4;
   options.sweep_sensors = 1;
   options.command = "test";
-  const std::string summary = writeReport(sensor, sscnn, &baseline, options);
+  // The published protocol with the shipped model trained on it and its baseline.
+  const std::string published_model = std::string(DSS_SOURCE_DIR) + "/models/thesis_sa_published.dssmodel";
+  PublishedProtocolRun published;
+  published.sensor = parseSensorConfig(loadModel(published_model).meta.sensor_yaml, published_model);
+  SscnnEstimator published_sscnn(published_model, &published.sensor);
+  CentroidEstimator published_baseline(
+      loadCalibration(std::string(DSS_SOURCE_DIR) + "/models/thesis_sa_published.calib.yaml"));
+  published.sscnn = &published_sscnn;
+  published.baseline = &published_baseline;
+  options.published_images = 20;
+  const std::string summary = writeReport(sensor, sscnn, &baseline, options, {}, &published);
   EXPECT_EQ(readFile(options.out_dir + "/summary.json"), summary + "\n");
 
   const std::string html = readFile(options.out_dir + "/index.html");
@@ -56,6 +67,15 @@ TEST(Report, SmallReportHasEveryPlotAndFigure) {
         "\"robustness\": [", "\"term\": \"hot_pixels\"", "\"term\": \"debris\"", "\"sscnn_valid_rate\"",
         "\"baseline_mean_deg\"", "\"published_sscnn\"", "\"provenance\""})
     EXPECT_NE(summary.find(key), std::string::npos) << key;
+  // The published-protocol model on grid positions it never saw: about 0.001 deg per axis.
+  const std::size_t protocol = summary.find("\"published_protocol\": {");
+  ASSERT_NE(protocol, std::string::npos);
+  for (const char* key : {"\"sscnn\": {\"estimator\"", "\"baseline\": {\"estimator\""})
+    EXPECT_NE(summary.find(key, protocol), std::string::npos) << key;
+  const std::size_t mean_at = summary.find("\"alpha_mean_deg\": ", protocol);
+  ASSERT_NE(mean_at, std::string::npos);
+  EXPECT_LT(std::stod(summary.substr(mean_at + 18)), 0.005);
+  EXPECT_NE(html.find("published protocol"), std::string::npos);
   // Figures that must exist (the Cramer-Rao keys are null: the report does not compute the bound).
   for (const char* missing :
        {"\"alpha_mean_deg\": null", "\"alpha_within_1sigma\": null", "\"sscnn_false_alarm_rate\": null"})

@@ -3,6 +3,7 @@
 // checkpoints and options are rejected; augmentation is seeded.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 
@@ -138,6 +139,57 @@ TEST(Train, ResumedRunReachesTheSameWeights) {
   for (std::size_t i = 0; i < a.size(); ++i) max_diff = std::max(max_diff, std::abs(double(a[i]) - double(b[i])));
   EXPECT_EQ(max_diff, 0.0) << "weights differ by up to " << max_diff;
   std::remove(options.checkpoint_path.c_str());
+}
+
+// Fewer training images than a batch: one short batch per epoch (this used to
+// read past the data order).
+TEST(Train, TrainingSetSmallerThanABatchTrains) {
+  TrainingSet train{tinySet().spec()}, validation{tinySet().spec()};
+  for (std::size_t i = 0; i < 6; ++i) train.add(tinySet().samples()[i]);
+  for (std::size_t i = 6; i < 10; ++i) validation.add(tinySet().samples()[i]);
+  TrainOptions options = tinyOptions();
+  options.epochs = 2;
+  std::atomic<bool> stop{false};
+  Trainer trainer(tinySensor(), train, validation, options);
+  const TrainResult result = trainer.run({}, stop);
+  EXPECT_EQ(result.stop, TrainStop::finished);
+  EXPECT_EQ(result.last.epoch, 1);
+  EXPECT_TRUE(std::isfinite(result.last.best_val_mean_deg));
+}
+
+// --init: training starts from the given model's weights, which must suit
+// the sensor and the architecture asked for.
+TEST(Train, InitModelGivesTheStartingWeights) {
+  TrainingSet train{tinySet().spec()}, validation{tinySet().spec()};
+  tinySet().split(0.2, 1, train, validation);
+  const std::string init_path = tempPath("init.dssmodel"), out_path = tempPath("from_init.dssmodel");
+  saveModel(createModel(tinySensor(), "resnet10_w16", 99), init_path);
+  TrainOptions options = tinyOptions();
+  options.arch = "";  // taken from the init model
+  options.init_model = init_path;
+  std::atomic<bool> stop{true};  // no step: the weights stay the init model's
+  Trainer trainer(tinySensor(), train, validation, options);
+  trainer.run({}, stop);
+  trainer.saveModel(out_path, "test");
+  const Model init = loadModel(init_path), out = loadModel(out_path);
+  std::vector<const SparseSample*> samples;
+  for (std::size_t i = 0; i < 4; ++i) samples.push_back(&validation.samples()[i]);
+  const auto a = init.predictSamples(samples), b = out.predictSamples(samples);
+  for (std::size_t i = 0; i < samples.size(); ++i) EXPECT_EQ(a[i].alpha_rad, b[i].alpha_rad);
+  EXPECT_NE(out.meta.training_yaml.find("init_model"), std::string::npos);
+
+  options.arch = "resnet18_w32";
+  EXPECT_THROW(Trainer(tinySensor(), train, validation, options), std::invalid_argument);
+  options.arch = "";
+  options.init_model = tempPath("missing.dssmodel");
+  try {
+    Trainer(tinySensor(), train, validation, options);
+    ADD_FAILURE() << "a missing init model was accepted";
+  } catch (const ModelError& e) {
+    EXPECT_NE(std::string(e.what()).find("missing.dssmodel"), std::string::npos) << e.what();
+  }
+  std::remove(init_path.c_str());
+  std::remove(out_path.c_str());
 }
 
 TEST(Train, BadCheckpointsAndOptionsAreRejected) {

@@ -42,8 +42,10 @@ int runCalibrateSigma(int argc, char** argv) {
       });
   if (reading) reading->finish();
   std::cerr << "read " << describe(data) << "\n";
+  // The envelope recorded in training (which may have included anomalies)
+  // widened to these images: it covers all the model has been fitted to.
+  const InputEnvelope envelope = covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts()));
   const SigmaCalibration c = calibrateSigma(model, data.samples, max_images ? max_images : data.samples.size());
-  const InputEnvelope envelope = measureInputEnvelope(data.samples.siteCounts());
   recordInputEnvelope(model.meta, envelope);
   saveModel(model, args.get("out"));
   std::cerr << "wrote " << args.get("out") << "\n";

@@ -3,6 +3,7 @@
 #include <chrono>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 
 #include "commands.h"
 #include "digital_sun_sensor/baseline/calibration.h"
@@ -34,6 +35,16 @@ int runReport(int argc, char** argv) {
           {"sweep-images", "N", "images per robustness level", "100", false, false},
           {"sweep-sensors", "K", "sensors drawn per robustness level", "4", false, false},
           {"threads", "T", "render threads", "2", false, false},
+          {"published-model", "MODEL",
+           "model trained on the published protocol, shown beside the published SSCNN (default: MODEL's "
+           "directory/<sensor>_published.dssmodel when it exists; none: leave out)",
+           "", false, false},
+          {"published-calibration", "CALIB",
+           "centroid baseline on the published protocol (default: the published model's .calib.yaml; none: leave out)",
+           "", false, false},
+          {"published-images", "N", "published-protocol test images", "1000", false, false},
+          {"published-seed", "S", "grid shuffle of the published-protocol test images", "531", false, false},
+          {"published-offset", "K", "first grid position of the published-protocol test images", "30000", false, false},
       });
   if (!args.parse(argc, argv, 2)) return 0;
   sparse::configureThreads(1, 1);
@@ -56,6 +67,35 @@ int runReport(int argc, char** argv) {
     calibration_path = "none";
   }
 
+  // The published protocol: a model trained on it, and its baseline.
+  const std::filesystem::path model_dir = std::filesystem::path(model_path).parent_path();
+  std::string published_path = args.has("published-model")
+                                   ? args.get("published-model")
+                                   : (model_dir / (sensor.name + "_published.dssmodel")).string();
+  if (args.has("published-model") && published_path != "none" && !std::filesystem::exists(published_path))
+    throw UsageError("dss report: --published-model " + published_path + " does not exist");
+  std::optional<PublishedProtocolRun> published;
+  std::unique_ptr<SunEstimator> published_sscnn, published_baseline;
+  std::string published_calibration = "none";
+  if (published_path != "none" && std::filesystem::exists(published_path)) {
+    const Model protocol_model = loadModel(published_path);
+    published.emplace();
+    published->sensor = parseSensorConfig(protocol_model.meta.sensor_yaml, published_path + " (sensor)");
+    published_sscnn = std::make_unique<SscnnEstimator>(published_path, &published->sensor);
+    published->sscnn = published_sscnn.get();
+    published_calibration = args.has("published-calibration")
+                                ? args.get("published-calibration")
+                                : std::filesystem::path(published_path).replace_extension(".calib.yaml").string();
+    if (published_calibration != "none" && std::filesystem::exists(published_calibration)) {
+      published_baseline = std::make_unique<CentroidEstimator>(loadCalibration(published_calibration));
+      published->baseline = published_baseline.get();
+    } else if (args.has("published-calibration") && published_calibration != "none") {
+      throw UsageError("dss report: --published-calibration " + published_calibration + " does not exist");
+    } else {
+      published_calibration = "none";
+    }
+  }
+
   ReportOptions options;
   options.out_dir = args.get("out");
   options.seed = static_cast<std::uint64_t>(args.getInt("seed"));
@@ -68,6 +108,11 @@ int runReport(int argc, char** argv) {
   options.sscnn_description = model_path + " (" + model.meta.arch.name + ")";
   options.baseline_description = calibration_path;
   options.model_metadata_yaml = metadataToYaml(model.meta);
+  options.published_images = static_cast<int>(args.getInt("published-images"));
+  options.published_grid_seed = static_cast<std::uint64_t>(args.getInt("published-seed"));
+  options.published_grid_offset = static_cast<std::uint64_t>(args.getInt("published-offset"));
+  options.published_sscnn_description = published ? published_path : "none";
+  options.published_baseline_description = published_calibration;
   try {
     options.validate();
   } catch (const std::invalid_argument& e) {
@@ -76,13 +121,14 @@ int runReport(int argc, char** argv) {
 
   const auto t0 = std::chrono::steady_clock::now();
   std::string last_stage;
-  const std::string summary = writeReport(sensor, sscnn, baseline.get(), options,
-                                          [&](const std::string& stage, std::size_t done, std::size_t total) {
-                                            if (stage != last_stage) std::cerr << "report: " << stage << "\n";
-                                            if (total > 1 && done > 0)
-                                              std::cerr << "report: " << stage << " " << done << "/" << total << "\n";
-                                            last_stage = stage;
-                                          });
+  const std::string summary = writeReport(
+      sensor, sscnn, baseline.get(), options,
+      [&](const std::string& stage, std::size_t done, std::size_t total) {
+        if (stage != last_stage) std::cerr << "report: " << stage << "\n";
+        if (total > 1 && done > 0) std::cerr << "report: " << stage << " " << done << "/" << total << "\n";
+        last_stage = stage;
+      },
+      published ? &*published : nullptr);
   std::cerr << "report: wrote " << options.out_dir << "/index.html in "
             << std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() << " s\n";
   std::cout << summary << std::endl;

@@ -36,8 +36,11 @@ int runTrain(int argc, char** argv) {
           {"out", "MODEL", "model file to write", "", true, false},
           {"sensor", "CFG", "sensor config (default: the one recorded in the first bag)", "", false, false},
           {"set", "KEY=VALUE", "override a key of --sensor", "", false, true},
-          {"arch", "A", "architecture (resnet34, resnet18, resnet18_w32, resnet10_w16)", defaultArchName(), false,
-           false},
+          {"arch", "A",
+           "architecture (resnet34, resnet18, resnet18_w32, resnet10_w16; default: the --init model's, else " +
+               defaultArchName() + ")",
+           "", false, false},
+          {"init", "MODEL", "start from this model's weights (fine-tuning; it must suit the sensor)", "", false, false},
           {"resume", "CKPT", "continue from this checkpoint", "", false, false},
           {"checkpoint", "CKPT", "checkpoint file (default: MODEL.ckpt, or the --resume file)", "", false, false},
           {"checkpoint-minutes", "M", "minutes between checkpoints", num(defaults.checkpoint_interval_s / 60), false,
@@ -62,6 +65,7 @@ int runTrain(int argc, char** argv) {
 
   TrainOptions options;
   options.arch = args.get("arch");
+  options.init_model = args.get("init");
   options.epochs = static_cast<int>(args.getInt("epochs"));
   options.batch_size = static_cast<int>(args.getInt("batch"));
   options.learning_rate = args.getDouble("lr");
@@ -73,8 +77,9 @@ int runTrain(int argc, char** argv) {
   options.aten_threads = static_cast<int>(args.getInt("aten-threads"));
   options.blas_threads = static_cast<int>(args.getInt("blas-threads"));
   for (const auto& a : args.all("augment")) setAugmentation(options.augmentation, a);
-  options.checkpoint_path =
-      args.has("checkpoint") ? args.get("checkpoint") : args.has("resume") ? args.get("resume") : args.get("out") + ".ckpt";
+  options.checkpoint_path = args.has("checkpoint") ? args.get("checkpoint")
+                            : args.has("resume")   ? args.get("resume")
+                                                   : args.get("out") + ".ckpt";
   const double val_fraction = args.getDouble("val-fraction");
   if (!(val_fraction >= 0 && val_fraction < 1)) throw UsageError("dss train: --val-fraction must be in [0, 1)");
   options.validate();
@@ -83,10 +88,11 @@ int runTrain(int argc, char** argv) {
   if (args.has("sensor")) sensor = loadSensorConfig(args.get("sensor"), args.all("set"));
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
   std::unique_ptr<Progress> reading;
-  TrainingData data = loadTrainingData(args.all("data"), sensor, {}, max_images, [&](std::uint64_t done, std::uint64_t total) {
-    if (!reading) reading = std::make_unique<Progress>("train: reading bags", total);
-    reading->update(done);
-  });
+  TrainingData data =
+      loadTrainingData(args.all("data"), sensor, {}, max_images, [&](std::uint64_t done, std::uint64_t total) {
+        if (!reading) reading = std::make_unique<Progress>("train: reading bags", total);
+        reading->update(done);
+      });
   if (reading) reading->finish();
   std::cerr << "read " << describe(data) << "; " << data.samples.memoryBytes() / (1 << 20) << " MiB in memory\n";
   TrainingSet train{data.samples.spec()}, validation{data.samples.spec()};
@@ -101,8 +107,8 @@ int runTrain(int argc, char** argv) {
   }
   std::signal(SIGINT, onStopSignal);
   std::signal(SIGTERM, onStopSignal);
-  const TrainResult result = trainer.run([](const TrainProgress& p) { std::cerr << formatProgress(p) << std::endl; },
-                                         g_stop);
+  const TrainResult result =
+      trainer.run([](const TrainProgress& p) { std::cerr << formatProgress(p) << std::endl; }, g_stop);
   std::signal(SIGINT, SIG_DFL);
   std::signal(SIGTERM, SIG_DFL);
 
@@ -118,10 +124,11 @@ int runTrain(int argc, char** argv) {
   }
   const auto& p = result.last;
   std::cout << "{\"command\": \"train\", \"sensor\": \"" << data.sensor.name << "\", \"arch\": \"" << options.arch
-            << "\", \"stop\": \"" << toString(result.stop) << "\", \"model\": " << (complete ? "\"" + args.get("out") + "\"" : "null")
-            << ", \"checkpoint\": \"" << options.checkpoint_path << "\", \"epochs_completed\": "
-            << p.epoch + (p.epoch_end ? 1 : 0) << ", \"wall_s\": " << result.wall_s
-            << ", \"images_per_s\": " << p.images_per_s << ", \"val_alpha_mean_deg\": " << p.val_alpha_mean_deg
+            << "\", \"stop\": \"" << toString(result.stop)
+            << "\", \"model\": " << (complete ? "\"" + args.get("out") + "\"" : "null") << ", \"checkpoint\": \""
+            << options.checkpoint_path << "\", \"epochs_completed\": " << p.epoch + (p.epoch_end ? 1 : 0)
+            << ", \"wall_s\": " << result.wall_s << ", \"images_per_s\": " << p.images_per_s
+            << ", \"val_alpha_mean_deg\": " << p.val_alpha_mean_deg
             << ", \"val_beta_mean_deg\": " << p.val_beta_mean_deg << ", \"val_alpha_max_deg\": " << p.val_alpha_max_deg
             << ", \"val_beta_max_deg\": " << p.val_beta_max_deg << ", \"val_class_accuracy\": " << p.val_class_accuracy
             << ", \"best_val_mean_deg\": " << p.best_val_mean_deg << ", \"best_epoch\": " << p.best_epoch + 1 << "}"

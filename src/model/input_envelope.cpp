@@ -36,6 +36,12 @@ InputEnvelope inputEnvelopeOf(const ModelMetadata& meta) {
   return e;
 }
 
+InputEnvelope covering(const InputEnvelope& a, const InputEnvelope& b) {
+  if (!a.known()) return b;
+  if (!b.known()) return a;
+  return {std::min(a.min_sites, b.min_sites), std::max(a.max_sites, b.max_sites)};
+}
+
 void recordInputEnvelope(ModelMetadata& meta, const InputEnvelope& envelope) {
   YAML::Node metrics = YAML::Load(meta.metrics_yaml.empty() ? "{}" : meta.metrics_yaml);
   metrics["lit_sites_min"] = envelope.min_sites;

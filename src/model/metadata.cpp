@@ -57,15 +57,34 @@ double centredPitch(const std::vector<double>& values, double tolerance) {
   return std::abs(values.front() + values.back()) > tolerance ? 0.0 : pitch;
 }
 
+const char* latticeResolveName(LatticeResolve r) {
+  switch (r) {
+    case LatticeResolve::kClass:
+      return "class";
+    case LatticeResolve::kCode:
+      return "code";
+    default:
+      return "centroid";
+  }
+}
+
 // The lattice head for a full, centred lattice of apertures: whole pitches
-// from the coarse centroid when the sub-FOV classes are quadrants, from the
-// class when they are the apertures (a mask coded to tell them apart).
+// from the coarse centroid when the sub-FOV classes are quadrants; when they
+// are the apertures, from the aperture code if the diameters differ (the
+// spots then tell the apertures apart), else from the class.
 void setLattice(const SensorConfig& config, ArchSpec& arch) {
   arch.lattice_pitch_x = arch.lattice_pitch_y = 0.0;
   arch.lattice_columns = arch.lattice_rows = 1;
   if (config.mask.apertures.size() < 2) return;
-  arch.lattice_resolve =
-      config.subfov == SubFovType::kNearestAperture ? LatticeResolve::kClass : LatticeResolve::kCentroid;
+  double min_area_um2 = config.mask.apertures.front().areaUm2(), max_area_um2 = min_area_um2;
+  for (const auto& a : config.mask.apertures) {
+    min_area_um2 = std::min(min_area_um2, a.areaUm2());
+    max_area_um2 = std::max(max_area_um2, a.areaUm2());
+  }
+  const bool coded = max_area_um2 > 1.2 * min_area_um2;
+  arch.lattice_resolve = config.subfov != SubFovType::kNearestAperture ? LatticeResolve::kCentroid
+                         : coded                                       ? LatticeResolve::kCode
+                                                                       : LatticeResolve::kClass;
   constexpr double kToleranceUm = 0.05;
   std::vector<double> xs, ys;
   for (const auto& a : config.mask.apertures) {
@@ -82,6 +101,13 @@ void setLattice(const SensorConfig& config, ArchSpec& arch) {
   arch.lattice_pitch_y = 2.0 * pitch_y_um / pixel_um / config.detector.height_px;
   arch.lattice_columns = static_cast<int>(columns.size());
   arch.lattice_rows = static_cast<int>(rows.size());
+  // The code compares spot areas only where the spot is wholly on the
+  // detector: its radius (largest aperture, as a circle), normalized.
+  // Such masks are also wide fields, whose spots the edge cuts in most images.
+  arch.lattice_whole_spot_phase = arch.lattice_resolve == LatticeResolve::kCode;
+  if (arch.lattice_resolve == LatticeResolve::kCode)
+    arch.lattice_spot_radius = std::sqrt(max_area_um2 / M_PI) / pixel_um /
+                               (0.5 * std::min(config.detector.width_px, config.detector.height_px));
 }
 
 }  // namespace
@@ -134,8 +160,8 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "lattice_columns" << YAML::Value << m.arch.lattice_columns;
     e << YAML::Key << "lattice_rows" << YAML::Value << m.arch.lattice_rows;
     e << YAML::Key << "lattice_spot_radius" << YAML::Value << m.arch.lattice_spot_radius;
-    e << YAML::Key << "lattice_resolve" << YAML::Value
-      << (m.arch.lattice_resolve == LatticeResolve::kClass ? "class" : "centroid");
+    e << YAML::Key << "lattice_resolve" << YAML::Value << latticeResolveName(m.arch.lattice_resolve);
+    e << YAML::Key << "lattice_whole_spot_phase" << YAML::Value << m.arch.lattice_whole_spot_phase;
   }
   if (m.arch.geometric_prior_size > 0)
     e << YAML::Key << "geometric_prior_size" << YAML::Value << m.arch.geometric_prior_size;
@@ -192,10 +218,17 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     m.arch.lattice_spot_radius = get<double>(a, "lattice_spot_radius", origin, "arch.");
     const std::string resolve =
         a["lattice_resolve"] ? get<std::string>(a, "lattice_resolve", origin, "arch.") : "centroid";
-    if (resolve != "centroid" && resolve != "class")
-      throw ModelError(origin + ": metadata key 'arch.lattice_resolve' must be 'centroid' or 'class', not '" + resolve +
-                       "'");
-    m.arch.lattice_resolve = resolve == "class" ? LatticeResolve::kClass : LatticeResolve::kCentroid;
+    if (a["lattice_whole_spot_phase"])  // absent in models made before it existed: off
+      m.arch.lattice_whole_spot_phase = get<bool>(a, "lattice_whole_spot_phase", origin, "arch.");
+    bool known = false;
+    for (const auto r : {LatticeResolve::kCentroid, LatticeResolve::kClass, LatticeResolve::kCode})
+      if (resolve == latticeResolveName(r)) {
+        m.arch.lattice_resolve = r;
+        known = true;
+      }
+    if (!known)
+      throw ModelError(origin + ": metadata key 'arch.lattice_resolve' must be 'centroid', 'class' or 'code', not '" +
+                       resolve + "'");
   }
   if (a["geometric_prior_size"])  // absent: the linear prior
     m.arch.geometric_prior_size = get<int>(a, "geometric_prior_size", origin, "arch.");

@@ -108,13 +108,16 @@ Model createModel(const SensorConfig& config, const std::string& arch_name, std:
     const GeometricPrior prior = geometricPrior(config, m.meta.arch.geometric_prior_size, m.meta.angle_scale_rad);
     m.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
   }
-  if (m.meta.arch.classResolvedLattice()) {
+  if (m.meta.arch.apertureClassLattice()) {
     // Classes are the apertures (SubFovType::kNearestAperture), in config order.
     std::vector<std::array<double, 2>> offsets;
-    for (const auto& a : config.mask.apertures)
+    std::vector<double> areas_um2;
+    for (const auto& a : config.mask.apertures) {
       offsets.push_back({2.0 * a.x_um / config.detector.pitch_um / config.detector.width_px,
                          2.0 * a.y_um / config.detector.pitch_um / config.detector.height_px});
-    m.net->initLatticeClasses(offsets);
+      areas_um2.push_back(a.areaUm2());
+    }
+    m.net->initLatticeApertures(offsets, areas_um2);
   }
   // The predicted sigma starts at half a pixel of spot motion, the error of
   // the untrained physics prior, rather than at unit variance ~16 log units

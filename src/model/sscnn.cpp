@@ -4,9 +4,11 @@
 #include <torch/nn/functional/conv.h>
 #include <torch/nn/functional/pooling.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "digital_sun_sensor/sparse/ops.h"
+#include "lattice_code.h"
 
 namespace dss {
 
@@ -133,9 +135,11 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   variance_ = register_module("variance", torch::nn::Linear(features, 2));
   // The classes get their own branch: in a shared MLP the angle NLL's gradients,
   // which grow as the variance shrinks, drown the cross-entropy's.
-  const bool class_resolved = arch.classResolvedLattice();
-  if (class_resolved)  // per class: its aperture's spot offset from the lattice centre (initLatticeClasses)
+  const bool class_resolved = arch.apertureClassLattice();
+  if (class_resolved)  // per class: its aperture's spot offset from the lattice centre (initLatticeApertures)
     lattice_class_offsets_ = register_buffer("lattice_class_offsets", torch::zeros({arch.num_classes, 2}));
+  if (class_resolved && arch.lattice_resolve == LatticeResolve::kCode)
+    lattice_log_area_ = register_buffer("lattice_log_area", torch::zeros({arch.lattice_rows, arch.lattice_columns}));
   if (arch.geometric_prior_size > 0) {
     geometric_prior_ =
         register_buffer("geometric_prior", torch::zeros({1, 2, arch.geometric_prior_size, arch.geometric_prior_size}));
@@ -163,15 +167,30 @@ void SscnnNetImpl::initCentroidMap(double slope_x, double slope_y) {
   centroid_prior_[1] = slope_y;
 }
 
-void SscnnNetImpl::initLatticeClasses(const std::vector<std::array<double, 2>>& offsets) {
+void SscnnNetImpl::initLatticeApertures(const std::vector<std::array<double, 2>>& offsets,
+                                        const std::vector<double>& areas_um2) {
   if (!lattice_class_offsets_.defined()) return;
-  if (static_cast<std::int64_t>(offsets.size()) != lattice_class_offsets_.size(0))
-    throw std::invalid_argument("initLatticeClasses: " + std::to_string(offsets.size()) + " offsets for " +
+  if (static_cast<std::int64_t>(offsets.size()) != lattice_class_offsets_.size(0) || areas_um2.size() != offsets.size())
+    throw std::invalid_argument("initLatticeApertures: " + std::to_string(offsets.size()) + " offsets and " +
+                                std::to_string(areas_um2.size()) + " areas for " +
                                 std::to_string(lattice_class_offsets_.size(0)) + " classes");
   torch::NoGradGuard no_grad;
   for (std::size_t c = 0; c < offsets.size(); ++c)
     for (int axis = 0; axis < 2; ++axis)
       lattice_class_offsets_[static_cast<std::int64_t>(c)][axis] = offsets[c][static_cast<std::size_t>(axis)];
+  if (!lattice_log_area_.defined()) return;
+  std::vector<bool> filled(static_cast<std::size_t>(arch_.lattice_rows * arch_.lattice_columns), false);
+  for (std::size_t c = 0; c < offsets.size(); ++c) {
+    const long col = std::lround(offsets[c][0] / arch_.lattice_pitch_x + 0.5 * (arch_.lattice_columns - 1));
+    const long row = std::lround(offsets[c][1] / arch_.lattice_pitch_y + 0.5 * (arch_.lattice_rows - 1));
+    if (col < 0 || row < 0 || col >= arch_.lattice_columns || row >= arch_.lattice_rows || !(areas_um2[c] > 0.0))
+      throw std::invalid_argument("initLatticeApertures: aperture " + std::to_string(c) +
+                                  " is off the lattice or has no area");
+    filled[static_cast<std::size_t>(row * arch_.lattice_columns + col)] = true;
+    lattice_log_area_[row][col] = std::log(areas_um2[c]);
+  }
+  if (std::find(filled.begin(), filled.end(), false) != filled.end())
+    throw std::invalid_argument("initLatticeApertures: the apertures do not fill the lattice");
 }
 
 void SscnnNetImpl::initGeometricPrior(const torch::Tensor& table, double extent_x, double extent_y) {
@@ -233,7 +252,7 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
   // brightness; normalized, the MLP starts in its working range.
   const torch::Tensor normed = head_norm_->forward(pooled);
   SscnnOutput result;
-  const bool class_resolved = arch_.classResolvedLattice();
+  const bool class_resolved = arch_.apertureClassLattice();
   torch::Tensor position = spots.centroid;
   if (spots.phase.defined() && !class_resolved) position = resolveLattice(spots, {}, {});
   // The class branch reads the position when it is known before the class,
@@ -266,28 +285,61 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
 }
 
 SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const torch::Tensor& xy,
-                                                  const torch::Tensor& index, std::int64_t batch) const {
+                                                  const torch::Tensor& lit, const torch::Tensor& index,
+                                                  std::int64_t batch) const {
   auto weighted_sum = [&](const torch::Tensor& values) {
     return torch::zeros({batch, values.size(1)}, values.options()).index_add(0, index, values);
   };
   SpotReading reading;
   reading.centroid = weighted_sum(w * xy) / (weighted_sum(w) + 1e-6);
   if (!arch_.latticeHead()) return reading;
-  std::vector<torch::Tensor> phase(2);
-  for (int axis = 0; axis < 2; ++axis) {
-    const double pitch = axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y;
-    // Phase of the spot positions modulo the pitch: a circular mean, the same
-    // whichever spots are on the detector (exact for symmetric spots).
-    const torch::Tensor angle = xy.slice(1, axis, axis + 1) * (2.0 * M_PI / pitch);
-    const torch::Tensor sums = weighted_sum(torch::cat({w * torch::cos(angle), w * torch::sin(angle)}, 1));
-    phase[axis] = torch::atan2(sums.slice(1, 1, 2), sums.slice(1, 0, 1)) * (pitch / (2.0 * M_PI));
+  const torch::Tensor pitch = torch::tensor({arch_.lattice_pitch_x, arch_.lattice_pitch_y}, xy.options());
+  // Phase of the spot positions modulo the pitch: a circular mean, the same
+  // whichever spots are on the detector (exact for symmetric spots). Also the
+  // total weight per image.
+  auto circularMean = [&](const torch::Tensor& weights) {
+    const torch::Tensor angle = xy * (2.0 * M_PI / pitch);
+    const torch::Tensor sums = weighted_sum(torch::cat({weights * torch::cos(angle), weights * torch::sin(angle)}, 1));
+    return std::make_pair(torch::atan2(sums.slice(1, 2, 4), sums.slice(1, 0, 2)) * pitch / (2.0 * M_PI),
+                          weighted_sum(weights));
+  };
+  reading.phase = circularMean(w).first;
+  if (arch_.lattice_whole_spot_phase) {
+    torch::Tensor whole;  // [N, 1]: the site's spot lies wholly on the detector
+    {
+      torch::NoGradGuard no_grad;
+      const torch::Tensor site_phase = reading.phase.detach().index_select(0, index);
+      const torch::Tensor spot_centre = site_phase + ((xy.detach() - site_phase) / pitch).round() * pitch;
+      whole = (spot_centre.abs() < 1.0 - 2.0 * arch_.lattice_spot_radius).all(1, true).to(w.scalar_type());
+    }
+    const auto [whole_phase, whole_weight] = circularMean(w * whole);
+    // An image without a whole spot keeps the phase of all its spots.
+    reading.phase = torch::where(whole_weight > 1e-6, whole_phase, reading.phase);
   }
-  reading.phase = torch::cat(phase, 1);
+  if (lattice_log_area_.defined()) {
+    LatticeCode code;
+    code.pitch_x = arch_.lattice_pitch_x;
+    code.pitch_y = arch_.lattice_pitch_y;
+    code.columns = arch_.lattice_columns;
+    code.rows = arch_.lattice_rows;
+    code.log_area = lattice_log_area_;
+    code.edge_margin = 2.0 * arch_.lattice_spot_radius;
+    if (geometric_prior_.defined()) {
+      code.max_shift_x = geometric_prior_extent_[0].item<double>();
+      code.max_shift_y = geometric_prior_extent_[1].item<double>();
+    }
+    reading.code_steps = codeLatticeSteps(code, reading.phase, xy, lit, index, batch);
+  }
   return reading;
 }
 
 torch::Tensor SscnnNetImpl::resolveLattice(const SpotReading& spots, const torch::Tensor& class_logits,
                                            const torch::Tensor& known_classes) const {
+  // The aperture code, in training too: the true class (the aperture whose
+  // spot is nearest the detector centre) implies the shift only to within
+  // half a pitch, which near the edge of the field, where the nearest spot
+  // may lie further out, picks the wrong pitch.
+  if (spots.code_steps.defined()) return spots.phase + spots.code_steps;
   torch::Tensor class_estimate;  // lattice shift the classes imply, [B, 2]
   if (known_classes.defined() && class_logits.defined()) {
     class_estimate = -lattice_class_offsets_.index_select(0, known_classes.to(torch::kLong));
@@ -350,7 +402,9 @@ SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor
     // sum(w xy) / sum(w) per image.
     SparseTensor c = centroid_conv1_->forward(input.with(input.features.slice(1, 0, 1).contiguous()));
     c = centroid_conv2_->forward(c.with(torch::relu(c.features)));
-    spots = readSpots(torch::softplus(c.features), input.features.slice(1, 1, 3), sparse::batchIndex(*input.sites),
+    // Every site of the sparse input is lit.
+    spots = readSpots(torch::softplus(c.features), input.features.slice(1, 1, 3),
+                      torch::ones({input.features.size(0)}, input.features.options()), sparse::batchIndex(*input.sites),
                       input.sites->batchSize());
   }
   return head(pooled, spots, known_classes);
@@ -373,7 +427,7 @@ SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
     const auto batch = input.size(0), pixels = input.size(2) * input.size(3);
     const auto index = torch::arange(batch, torch::TensorOptions().dtype(torch::kLong)).repeat_interleave(pixels);
     spots = readSpots(w.permute({0, 2, 3, 1}).reshape({-1, 1}),
-                      input.slice(1, 1, 3).permute({0, 2, 3, 1}).reshape({-1, 2}), index, batch);
+                      input.slice(1, 1, 3).permute({0, 2, 3, 1}).reshape({-1, 2}), active.reshape({-1}), index, batch);
   }
   return head(pooled, spots, {});
 }

@@ -3,16 +3,15 @@
 // progress on ~progress (TrainingProgress) and /diagnostics; checkpoints on
 // SIGINT/SIGTERM. Exits when training ends (0), is interrupted (3) or fails (1).
 #include <diagnostic_updater/diagnostic_updater.h>
+#include <digital_sun_sensor/TrainingProgress.h>
 #include <ros/ros.h>
 
 #include <csignal>
 #include <cstdio>
 #include <fstream>
 #include <map>
-#include <optional>
 #include <mutex>
-
-#include <digital_sun_sensor/TrainingProgress.h>
+#include <optional>
 
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/ros/node_params.h"
@@ -29,6 +28,7 @@ bool fileExists(const std::string& path) { return std::ifstream(path).good(); }
 TrainOptions optionsFromParams(const ros::NodeHandle& pnh) {
   TrainOptions o;
   o.arch = pnh.param<std::string>("arch", "");
+  o.init_model = pnh.param<std::string>("init_model", "");
   o.batch_size = pnh.param("batch_size", o.batch_size);
   o.epochs = pnh.param("epochs", o.epochs);
   o.patience_epochs = pnh.param("patience_epochs", o.patience_epochs);
@@ -89,15 +89,15 @@ class TrainerNode {
     setState("reading", "reading " + std::to_string(bags.size()) + " bag(s)");
     publish();
     int last_decile = -1;
-    TrainingData data = loadTrainingData(
-        bags, sensor, topics, static_cast<std::uint64_t>(pnh_.param("max_images", 0)),
-        [&](std::uint64_t done, std::uint64_t total) {
-          const int decile = total ? static_cast<int>(10 * done / total) : 0;
-          if (decile != last_decile) ROS_INFO("reading bags: %llu/%llu images", (unsigned long long)done,
-                                              (unsigned long long)total);
-          last_decile = decile;
-          updater_.update();
-        });
+    TrainingData data = loadTrainingData(bags, sensor, topics, static_cast<std::uint64_t>(pnh_.param("max_images", 0)),
+                                         [&](std::uint64_t done, std::uint64_t total) {
+                                           const int decile = total ? static_cast<int>(10 * done / total) : 0;
+                                           if (decile != last_decile)
+                                             ROS_INFO("reading bags: %llu/%llu images", (unsigned long long)done,
+                                                      (unsigned long long)total);
+                                           last_decile = decile;
+                                           updater_.update();
+                                         });
     ROS_INFO("read %s", describe(data).c_str());
     TrainingSet train{data.samples.spec()}, validation{data.samples.spec()};
     data.samples.split(val_fraction, options.seed, train, validation);

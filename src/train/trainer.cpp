@@ -163,13 +163,25 @@ struct Trainer::Impl {
       : sensor(s), train(std::move(t)), validation(std::move(v)), options(std::move(o)) {
     options.validate();
     if (train.size() == 0) throw std::invalid_argument("no training samples");
-    if (options.arch.empty()) options.arch = defaultArchName();
     sparse::configureThreads(options.aten_threads, options.blas_threads);
-    model = createModel(sensor, options.arch, deriveSeed(options.seed, 0xA7C4));
+    if (!options.init_model.empty()) {
+      model = loadModel(options.init_model, &sensor);  // ModelError names the file and the mismatch
+      if (options.arch.empty()) options.arch = model.meta.arch.name;
+      if (model.meta.arch.name != options.arch)
+        throw std::invalid_argument("training option init_model: " + options.init_model + " is " +
+                                    model.meta.arch.name + ", not " + options.arch);
+    } else {
+      if (options.arch.empty()) options.arch = defaultArchName();
+      model = createModel(sensor, options.arch, deriveSeed(options.seed, 0xA7C4));
+    }
     model.net->train();
     optimizer = std::make_unique<torch::optim::AdamW>(
         model.net->parameters(), torch::optim::AdamWOptions(options.learning_rate).weight_decay(options.weight_decay));
     data_fingerprint = fingerprint(train) ^ splitmix64(fingerprint(validation));
+  }
+
+  std::int64_t imagesPerStep() const {
+    return std::min<std::int64_t>(options.batch_size, static_cast<std::int64_t>(train.size()));
   }
 
   std::int64_t stepsPerEpoch() const {
@@ -202,7 +214,9 @@ struct Trainer::Impl {
     augmented.reserve(static_cast<std::size_t>(options.batch_size));
     std::vector<float> targets;
     std::vector<std::int64_t> classes;
-    for (std::size_t k = b0; k < b0 + static_cast<std::size_t>(options.batch_size); ++k) {
+    // A training set smaller than a batch makes one short batch per epoch.
+    const std::size_t b1 = std::min(order.size(), b0 + static_cast<std::size_t>(options.batch_size));
+    for (std::size_t k = b0; k < b1; ++k) {
       const SparseSample& s = train.samples()[order[k]];
       augmented.push_back(augment(s, train.spec(), options.augmentation,
                                   deriveSeed(options.seed, (static_cast<std::uint64_t>(epoch) << 32) + k)));
@@ -373,6 +387,7 @@ struct Trainer::Impl {
     t << YAML::Key << "optimizer" << YAML::Value << "AdamW, linear warm-up + cosine decay";
     t << YAML::Key << "learning_rate" << YAML::Value << options.learning_rate;
     t << YAML::Key << "seed" << YAML::Value << options.seed;
+    if (!options.init_model.empty()) t << YAML::Key << "init_model" << YAML::Value << options.init_model;
     t << YAML::Key << "wall_s" << YAML::Value << last.elapsed_s;
     t << YAML::EndMap;
     m.meta.training_yaml = t.c_str();
@@ -432,7 +447,7 @@ TrainResult Trainer::run(const std::function<void(const TrainProgress&)>& on_pro
     m.last.epoch_end = epoch_end;
     m.last.loss = loss_count ? loss_sum / loss_count : m.last.loss;
     m.last.elapsed_s = m.elapsed_before_s + run_s;
-    m.last.images_per_s = run_s > 0 ? static_cast<double>(steps_this_run * m.options.batch_size) / run_s : 0.0;
+    m.last.images_per_s = run_s > 0 ? static_cast<double>(steps_this_run * m.imagesPerStep()) / run_s : 0.0;
     const std::int64_t done = static_cast<std::int64_t>(m.epoch) * steps_per_epoch + m.step_in_epoch;
     m.last.eta_s = steps_this_run > 0
                        ? run_s / static_cast<double>(steps_this_run) * static_cast<double>(total_steps - done)

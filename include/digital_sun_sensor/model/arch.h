@@ -8,9 +8,11 @@
 namespace dss {
 
 // How the lattice head takes whole pitches: from the coarse centroid (spots
-// leaving the detector tell the lattice apart), or from the sub-FOV class
-// (masks coded so that the classifier tells the apertures apart).
-enum class LatticeResolve { kCentroid, kClass };
+// leaving the detector tell the lattice apart), from the sub-FOV class (the
+// classifier tells the apertures apart), or from the aperture code (spot
+// areas matched against a mask whose diameters differ; the classes are the
+// apertures, as with kClass).
+enum class LatticeResolve { kCentroid, kClass, kCode };
 
 struct ArchSpec {
   std::string name;
@@ -39,6 +41,10 @@ struct ArchSpec {
   int lattice_columns = 1, lattice_rows = 1;
   LatticeResolve lattice_resolve = LatticeResolve::kCentroid;
   double lattice_spot_radius = 0.03;  // normalized; spots fade out over it at the detector edge
+  // Phase from the spots wholly on the detector only (their centres at least
+  // two spot radii inside): a spot cut by the edge has its centroid pulled
+  // inward by up to its radius, a bias the head cannot tell from the image.
+  bool lattice_whole_spot_phase = false;
   // Wide fields of view: the physics prior maps the position to the angles
   // through a size x size table of the nominal geometry (refraction, tan)
   // instead of a slope, so the learned terms stay small corrections. 0: slope.
@@ -47,7 +53,8 @@ struct ArchSpec {
   int num_classes = 4;  // sub-FOV classes of the sensor
 
   bool latticeHead() const { return lattice_pitch_x > 0.0 && lattice_pitch_y > 0.0; }
-  bool classResolvedLattice() const { return latticeHead() && lattice_resolve == LatticeResolve::kClass; }
+  // The sub-FOV classes are the apertures, and go with the resolved position.
+  bool apertureClassLattice() const { return latticeHead() && lattice_resolve != LatticeResolve::kCentroid; }
   // Throws std::invalid_argument naming the bad field.
   void validate() const;
 };

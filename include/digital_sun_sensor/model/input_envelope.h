@@ -22,6 +22,9 @@ struct InputEnvelope {
 // widened by 25 % each way. Unknown when `site_counts` is empty.
 InputEnvelope measureInputEnvelope(std::vector<int> site_counts);
 
+// The smallest envelope holding both (an unknown one adds nothing).
+InputEnvelope covering(const InputEnvelope& a, const InputEnvelope& b);
+
 // Stored in the model's metrics as lit_sites_min / lit_sites_max.
 InputEnvelope inputEnvelopeOf(const ModelMetadata& meta);
 void recordInputEnvelope(ModelMetadata& meta, const InputEnvelope& envelope);

@@ -62,7 +62,8 @@ class SscnnNetImpl : public torch::nn::Module {
  public:
   explicit SscnnNetImpl(const ArchSpec& arch);
   // `known_classes` [B] (training only): the true sub-FOV classes, which then
-  // resolve a class-resolved lattice head in place of the predicted ones.
+  // resolve a class-resolved lattice head (LatticeResolve::kClass) in place
+  // of the predicted ones.
   SscnnOutput forward(const sparse::SparseTensor& input, const torch::Tensor& known_classes = {});
   // The same layers and weights evaluated densely (torch::conv2d over the whole
   // [B, 3, H, W] image), for the sparse-vs-dense benchmark.
@@ -72,9 +73,10 @@ class SscnnNetImpl : public torch::nn::Module {
   // the active sites and maps linearly to the angles with these slopes
   // (normalized units), so training starts at a pinhole-model estimate.
   void initCentroidMap(double slope_x, double slope_y);
-  // Lattice head resolved by the class: per class, the normalized offset of
-  // its aperture's spot from the lattice centre (no-op for other heads).
-  void initLatticeClasses(const std::vector<std::array<double, 2>>& offsets);
+  // Lattice heads whose classes are the apertures: per class, the normalized
+  // offset of its aperture's spot from the lattice centre, and the aperture's
+  // open area (read by the aperture code). No-op for other heads.
+  void initLatticeApertures(const std::vector<std::array<double, 2>>& offsets, const std::vector<double>& areas_um2);
   // Wide fields: the angles of the nominal geometry as a table over the
   // position [2, size, size] (normalized angles) spanning +-extent (normalized
   // position) per axis, read by Catmull-Rom interpolation instead of the linear
@@ -83,17 +85,19 @@ class SscnnNetImpl : public torch::nn::Module {
   std::int64_t parameterCount() const;
 
  private:
-  // Spot read-out per image from site weights w [N, 1], positions xy [N, 2]
-  // and image index [N]: the weighted centroid [B, 2] and, with the lattice
-  // head, the phase of the positions modulo the lattice pitch [B, 2].
+  // Spot read-out per image from site weights w [N, 1], positions xy [N, 2],
+  // lit [N] (1 for a lit site) and image index [N]: the weighted centroid
+  // [B, 2] and, with the lattice head, the phase of the positions modulo the
+  // lattice pitch [B, 2] (from the whole spots: lattice_whole_spot_phase)
+  // and, with the aperture code, the whole pitches it gives [B, 2].
   struct SpotReading {
-    torch::Tensor centroid, phase;
+    torch::Tensor centroid, phase, code_steps;
   };
-  SpotReading readSpots(const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& index,
-                        std::int64_t batch) const;
+  SpotReading readSpots(const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& lit,
+                        const torch::Tensor& index, std::int64_t batch) const;
   // Lattice shift (position of the lattice centre's spot) [B, 2]: the phase
-  // plus the whole pitches the coarse centroid (no logits) or the class
-  // probabilities (or, when given, the known classes) imply.
+  // plus the whole pitches the aperture code, the known classes (training),
+  // the class probabilities or the coarse centroid imply, first defined first.
   torch::Tensor resolveLattice(const SpotReading& spots, const torch::Tensor& class_logits,
                                const torch::Tensor& known_classes) const;
   SscnnOutput head(const torch::Tensor& pooled, const SpotReading& spots, const torch::Tensor& known_classes);
@@ -108,7 +112,8 @@ class SscnnNetImpl : public torch::nn::Module {
   torch::nn::Linear output_{nullptr}, variance_{nullptr}, centroid_skip_{nullptr}, class_hidden_{nullptr},
       class_output_{nullptr};
   torch::Tensor centroid_prior_;         // buffer: angle per unit centroid, per axis
-  torch::Tensor lattice_class_offsets_;  // buffer [num_classes, 2] (lattice head resolved by the class)
+  torch::Tensor lattice_class_offsets_;  // buffer [num_classes, 2] (classes are the apertures)
+  torch::Tensor lattice_log_area_;       // buffer [rows, columns]: log open area (um^2) per node (aperture code)
   torch::Tensor geometric_prior_, geometric_prior_extent_;  // buffers [1, 2, size, size], [2]
 };
 

@@ -33,6 +33,12 @@ struct ApertureConfig {
   double height_um = 0.0;    // rectangle (along y before rotation)
   double rotation_deg = 0.0;
   std::vector<Occluder> occluders;  // filled by debris draws, never from YAML
+
+  // Open area without occluders.
+  double areaUm2() const {
+    return shape == ApertureShape::kCircle ? 0.25 * 3.14159265358979323846 * diameter_um * diameter_um
+                                           : width_um * height_um;
+  }
 };
 
 struct DetectorConfig {

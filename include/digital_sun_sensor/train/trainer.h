@@ -23,7 +23,10 @@ class CheckpointError : public std::runtime_error {
 };
 
 struct TrainOptions {
-  std::string arch;                 // architecture preset (empty: defaultArchName())
+  std::string arch;  // architecture preset (empty: the init model's, else defaultArchName())
+  // Start from this model file's weights (fine-tuning, e.g. on anomalies)
+  // instead of fresh ones; it must suit the sensor and, if given, `arch`.
+  std::string init_model;
   int batch_size = 64;
   int epochs = 20;                  // the learning-rate schedule spans this many epochs
   int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
@@ -36,7 +39,7 @@ struct TrainOptions {
   double max_minutes = 0.0;         // stop (with a checkpoint) after this wall time (0: no limit)
   std::string checkpoint_path;      // empty: no checkpoints
   double checkpoint_interval_s = 300.0;
-  double progress_interval_s = 2.0;  // 0: after every step
+  double progress_interval_s = 2.0;   // 0: after every step
   std::size_t validation_max = 4000;  // validate on at most this many samples (evenly spaced)
   AugmentationConfig augmentation;
   int aten_threads = 1;
@@ -51,7 +54,7 @@ struct TrainProgress {
   int epochs = 0;
   std::int64_t step_in_epoch = 0;
   std::int64_t steps_per_epoch = 0;
-  double loss = 0.0;           // running mean over the last steps
+  double loss = 0.0;  // running mean over the last steps
   double learning_rate = 0.0;
   double images_per_s = 0.0;
   double elapsed_s = 0.0;  // training wall time, including earlier runs of a resumed job

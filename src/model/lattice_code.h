@@ -1,0 +1,34 @@
+// Whole lattice pitches from the aperture code, for masks whose aperture
+// diameters differ so that the visible spots tell which apertures they come
+// from (wide_ma: every 2 x 2 neighbourhood of diameters is unique). Internal
+// to the SSCNN head (torch).
+#pragma once
+
+#include <torch/types.h>
+
+namespace dss {
+
+struct LatticeCode {
+  double pitch_x = 0.0, pitch_y = 0.0;  // normalized detector units
+  int columns = 1, rows = 1;
+  torch::Tensor log_area;  // [rows, columns]: log open area of each lattice node's aperture
+  // A cell whose spot centre lies nearer the detector edge than this may be
+  // cut: its size is not compared, and its absence is no evidence.
+  double edge_margin = 0.1;
+  double max_shift_x = 1e9, max_shift_y = 1e9;  // |lattice-centre position| the field of view allows
+  int min_spot_sites = 5;                       // fewer lit sites in a cell: no spot there
+};
+
+// For each image, the lattice-centre spot position minus the phase [B, 2]
+// (whole pitches, plus half a pitch for an even count), chosen among every
+// placement of the aperture lattice over the cells the spots occupy: fewest
+// contradictions (a lit cell no aperture explains, a wholly visible aperture
+// with no spot), then the spot sizes (variance of the lit sites along each
+// axis, where the spot is not cut across it) that best follow the apertures'
+// areas, up to a common factor per axis. Not differentiable.
+// phase [B, 2]; xy [N, 2] site positions; lit [N] 1 for a lit site; index [N]
+// image of each site.
+torch::Tensor codeLatticeSteps(const LatticeCode& code, const torch::Tensor& phase, const torch::Tensor& xy,
+                               const torch::Tensor& lit, const torch::Tensor& index, std::int64_t batch);
+
+}  // namespace dss
