@@ -1,12 +1,10 @@
 #!/usr/bin/env bash
 # Reproduces the shipped models in models/ and README's accuracy table: for each
 # sensor, a training bag and a fresh-seed test bag (continuous random angles over
-# the whole field of view), `dss train`, for some sensors a fine-tuning pass on
-# a bag with stray light and ghosts (--init), `dss calibrate-sigma` on a third
-# fresh bag, then `dss eval` of the model and of the centroid baseline
-# (calibrated on the first 1000 training images, shipped as
-# models/<sensor>.calib.yaml: calibration_node's fallback) on the same test bag.
-# Bags go to DATA_DIR (default .ws/models_data), never into git.
+# the whole field of view), `dss train`, `dss calibrate-sigma` on a third fresh
+# bag, then `dss eval` of the model and of the centroid baseline (calibrated on
+# the first 1000 training images, shipped as models/<sensor>.calib.yaml:
+# calibration_node's fallback) on the same test bag. Bags go to DATA_DIR (default .ws/models_data), never into git.
 #   scripts/train_models.sh [SENSOR...]     (default: thesis_sa thesis_ma wide_ma)
 # Bags and finished models already present are reused; an interrupted training
 # resumes from its checkpoint. Results: DATA_DIR/<sensor>.*.json.
@@ -15,25 +13,19 @@ source "$(dirname "$0")/dss_env.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
 mkdir -p "$DATA" "$ROOT/models"
 
-# sensor: training images, training seed, test seed, epochs, architecture,
-# sigma-calibration seed; then the anomaly fine-tuning pass: images, seed,
-# epochs (0 0 0: none).
+# sensor, training images, training seed, test seed, epochs, architecture, sigma-calibration seed
 recipe() {
   case "$1" in
-    thesis_sa) echo "60000 501 502 45 resnet18_w32 503 20000 504 4" ;;
-    thesis_ma) echo "60000 511 512 22 resnet10_w16 513 20000 514 4" ;;
-    wide_ma) echo "24000 521 522 10 resnet10_w16 523 0 0 0" ;;
+    thesis_sa) echo "60000 501 502 45 resnet18_w32 503" ;;
+    thesis_ma) echo "60000 511 512 22 resnet10_w16 513" ;;
+    wide_ma) echo "24000 521 522 10 resnet10_w16 523" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
-# Stray light up to 0.6 of full well and ghosts of reflectance 0.1 (the
-# report's most severe levels), each in 30 % of the images.
-ANOMALIES=(--anomalies stray_light=0.3,ghost=0.3 --set anomalies.stray_light.max_fraction=0.6
-  --set anomalies.ghost.reflectance=0.1)
 
 for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
   for s in $sensor; do
-    read -r count train_seed test_seed epochs arch sigma_seed anom_count anom_seed anom_epochs <<<"$(recipe "$s")"
+    read -r count train_seed test_seed epochs arch sigma_seed <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
     model="$ROOT/models/$s.dssmodel" calib="$ROOT/models/$s.calib.yaml" ckpt="$DATA/$s.ckpt"
     sigma="$DATA/$s.sigma.bag"
@@ -41,23 +33,10 @@ for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
     [ -f "$test" ] || "$DSS" generate --sensor "$cfg" --count 10000 --seed "$test_seed" --out "$test"
     [ -f "$sigma" ] || "$DSS" generate --sensor "$cfg" --count 5000 --seed "$sigma_seed" --out "$sigma"
     if [ ! -f "$model" ]; then
-      nominal="$model"
-      [ "$anom_count" = 0 ] || nominal="$DATA/$s.nominal.dssmodel"
-      if [ ! -f "$nominal" ]; then
-        resume=()
-        [ -f "$ckpt" ] && resume=(--resume "$ckpt")
-        "$DSS" train --data "$train" --out "$nominal" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" --lr 5e-4 \
-          --seed 1 "${resume[@]}" | tee "$DATA/$s.train.json"
-      fi
-      if [ "$anom_count" != 0 ]; then
-        anom="$DATA/$s.anomalies.bag" anom_ckpt="$DATA/$s.anomalies.ckpt"
-        [ -f "$anom" ] || "$DSS" generate --sensor "$cfg" "${ANOMALIES[@]}" --count "$anom_count" --seed "$anom_seed" \
-          --out "$anom"
-        resume=()
-        [ -f "$anom_ckpt" ] && resume=(--resume "$anom_ckpt")
-        "$DSS" train --data "$anom" --init "$nominal" --out "$model" --checkpoint "$anom_ckpt" --epochs "$anom_epochs" \
-          --lr 1e-4 --seed 1 "${resume[@]}" | tee "$DATA/$s.finetune.json"
-      fi
+      resume=()
+      [ -f "$ckpt" ] && resume=(--resume "$ckpt")
+      "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" --lr 5e-4 --seed 1 "${resume[@]}" \
+        | tee "$DATA/$s.train.json"
       # sigma (level, or a constant per axis) and the input envelope from fresh images
       "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" | tee "$DATA/$s.sigma.json"
     fi
