@@ -101,9 +101,10 @@ void setLattice(const SensorConfig& config, ArchSpec& arch) {
   arch.lattice_pitch_y = 2.0 * pitch_y_um / pixel_um / config.detector.height_px;
   arch.lattice_columns = static_cast<int>(columns.size());
   arch.lattice_rows = static_cast<int>(rows.size());
-  // The code compares spot areas only where the spot is wholly on the
-  // detector: its radius (largest aperture, as a circle), normalized.
-  // Such masks are also wide fields, whose spots the edge cuts in most images.
+  // The code compares spot sizes, and the phase reads spots, only where the
+  // edge does not cut them: the spot radius (largest aperture, as a circle),
+  // normalized. Such masks are also wide fields, whose spots the edge cuts in
+  // most images.
   arch.lattice_whole_spot_phase = arch.lattice_resolve == LatticeResolve::kCode;
   if (arch.lattice_resolve == LatticeResolve::kCode)
     arch.lattice_spot_radius = std::sqrt(max_area_um2 / M_PI) / pixel_um /

@@ -10,8 +10,8 @@ namespace dss {
 // How the lattice head takes whole pitches: from the coarse centroid (spots
 // leaving the detector tell the lattice apart), from the sub-FOV class (the
 // classifier tells the apertures apart), or from the aperture code (spot
-// areas matched against a mask whose diameters differ; the classes are the
-// apertures, as with kClass).
+// sizes matched against a mask whose diameters differ, src/model/lattice_code;
+// the classes are the apertures, as with kClass).
 enum class LatticeResolve { kCentroid, kClass, kCode };
 
 struct ArchSpec {
