@@ -78,11 +78,11 @@ int runReport(int argc, char** argv) {
   std::unique_ptr<SunEstimator> published_sscnn, published_baseline;
   std::string published_calibration = "none";
   if (published_path != "none" && std::filesystem::exists(published_path)) {
-    const Model protocol_model = loadModel(published_path);
+    auto protocol_sscnn = std::make_unique<SscnnEstimator>(published_path);
     published.emplace();
-    published->sensor = parseSensorConfig(protocol_model.meta.sensor_yaml, published_path + " (sensor)");
-    published_sscnn = std::make_unique<SscnnEstimator>(published_path, &published->sensor);
-    published->sscnn = published_sscnn.get();
+    published->sensor = protocol_sscnn->sensor();  // the protocol's, as embedded in the model
+    published->sscnn = protocol_sscnn.get();
+    published_sscnn = std::move(protocol_sscnn);
     published_calibration = args.has("published-calibration")
                                 ? args.get("published-calibration")
                                 : std::filesystem::path(published_path).replace_extension(".calib.yaml").string();

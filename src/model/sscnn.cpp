@@ -310,7 +310,7 @@ SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const 
       torch::NoGradGuard no_grad;
       const torch::Tensor site_phase = reading.phase.detach().index_select(0, index);
       const torch::Tensor spot_centre = site_phase + ((xy.detach() - site_phase) / pitch).round() * pitch;
-      whole = (spot_centre.abs() < 1.0 - 2.0 * arch_.lattice_spot_radius).all(1, true).to(w.scalar_type());
+      whole = (spot_centre.abs() < 1.0 - arch_.wholeSpotMargin()).all(1, true).to(w.scalar_type());
     }
     const auto [whole_phase, whole_weight] = circularMean(w * whole);
     // An image without a whole spot keeps the phase of all its spots.
@@ -323,7 +323,7 @@ SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const 
     code.columns = arch_.lattice_columns;
     code.rows = arch_.lattice_rows;
     code.log_area = lattice_log_area_;
-    code.edge_margin = 2.0 * arch_.lattice_spot_radius;
+    code.edge_margin = arch_.wholeSpotMargin();
     if (geometric_prior_.defined()) {
       code.max_shift_x = geometric_prior_extent_[0].item<double>();
       code.max_shift_y = geometric_prior_extent_[1].item<double>();

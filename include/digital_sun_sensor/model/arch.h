@@ -53,6 +53,9 @@ struct ArchSpec {
   int num_classes = 4;  // sub-FOV classes of the sensor
 
   bool latticeHead() const { return lattice_pitch_x > 0.0 && lattice_pitch_y > 0.0; }
+  // Normalized distance from the detector edge inside which a spot's centre
+  // must lie for the edge not to cut the spot (whole-spot phase, aperture code).
+  double wholeSpotMargin() const { return 2.0 * lattice_spot_radius; }
   // The sub-FOV classes are the apertures, and go with the resolved position.
   bool apertureClassLattice() const { return latticeHead() && lattice_resolve != LatticeResolve::kCentroid; }
   // Throws std::invalid_argument naming the bad field.
