@@ -426,7 +426,8 @@ std::string writeReport(const SensorConfig& sensor, SunEstimator& sscnn, SunEsti
       << o.published_images << " grid positions its training never saw (seed " << o.published_grid_seed
       << " from position " << o.published_grid_offset << "), without screens, as published.";
   else
-    h << "No published-protocol model was given (scripts/train_published.sh makes one for thesis_sa).";
+    h << "No published-protocol model was given (scripts/train_published.sh makes one for thesis_sa and thesis_ma; "
+         "the published work has no wide-field sensor).";
   h << "</p>\n<table><tr><th>estimator</th><th>mean &alpha; / &beta; (deg)</th><th>RMS &alpha; / &beta;</th><th>max "
        "&alpha; / &beta;</th><th>valid</th></tr>\n";
   for (int e = 0; e < n_published; ++e) {
