@@ -105,6 +105,30 @@ TEST(LatticeHead, ShiftStaysContinuousWhileSpotsLeaveTheDetector) {
     EXPECT_NEAR(predictions[k].alpha_rad, slope * shifts[k], 0.003 * kDeg) << "shift " << shifts[k] << " px";
 }
 
+// thesis_ma with a column of spots on the detector edge and the other two
+// unequal (a ghost on one column brightens it and, through the exposure,
+// dims the rest): weighted by brightness, the centroid lies nearer the
+// placement one pitch further out (3 deg), which leaves the dim column outside
+// the lattice; the spots' presence per column rules that placement out.
+TEST(LatticeHead, SpotPresenceResolvesPitchesTheCentroidWeightsWrongly) {
+  sparse::configureThreads(1, 1);
+  const SensorConfig c = shipped("thesis_ma");
+  const Model m = createModel(c, "resnet10_w16");
+  const double pitch_px = 265.05 / 1.55, centre_px = -87.0;
+  std::vector<Eigen::Vector2d> spots;
+  std::vector<double> unequal, equal;
+  for (int i = -1; i <= 1; ++i)
+    for (int j = -1; j <= 1; ++j) {
+      spots.emplace_back(centre_px + i * pitch_px, 23.4 + j * pitch_px);  // column -1 at -258 px: cut by the edge
+      unequal.push_back(i == 0 ? 4.0 : i == 1 ? 1.2 : 2.5);
+      equal.push_back(2.5);
+    }
+  const auto p = m.predict({drawSpots(c, spots, unequal), drawSpots(c, spots, equal)});
+  const double pitch_deg = std::atan(265.05 / 5000.0) / kDeg;
+  EXPECT_NEAR(p[0].alpha_rad, p[1].alpha_rad, 0.1 * pitch_deg * kDeg);
+  EXPECT_NEAR(p[0].beta_rad, p[1].beta_rad, 0.1 * pitch_deg * kDeg);
+}
+
 // wide_ma: the phase of the whole spots, whole pitches from the aperture code
 // (spot sizes against the diameters) or from the true class as in training,
 // and the geometric prior (refraction in the window, tan) give the angles of

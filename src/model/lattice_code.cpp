@@ -112,4 +112,28 @@ torch::Tensor codeLatticeSteps(const LatticeCode& code, const torch::Tensor& pha
   return torch::stack({step_x, step_y}, 1).to(phase.scalar_type());
 }
 
+torch::Tensor axisContradictions(double pitch, int count, double edge_margin, int min_spot_sites,
+                                 const torch::Tensor& phase, const torch::Tensor& steps, const torch::Tensor& position,
+                                 const torch::Tensor& lit, const torch::Tensor& index, std::int64_t batch) {
+  torch::NoGradGuard no_grad;
+  const auto real = torch::TensorOptions().dtype(torch::kDouble);
+  const auto phase_d = phase.detach().to(torch::kDouble).reshape({-1});
+  const auto reach = static_cast<std::int64_t>(std::ceil(1.0 / pitch)) + 1;
+  const std::int64_t cells = 2 * reach + 1;
+  const auto rel = (position.detach().to(torch::kDouble).reshape({-1}) - phase_d.index_select(0, index)) / pitch;
+  const auto cell = rel.round().to(torch::kLong).clamp(-reach, reach) + reach;
+  const auto lit_sites = torch::zeros({batch * cells}, real)
+                             .index_add_(0, index * cells + cell, lit.detach().reshape({-1}).to(torch::kDouble))
+                             .view({batch, 1, cells});
+  const auto lit_cell = lit_sites >= static_cast<double>(min_spot_sites);  // [B, 1, C]
+  const auto offsets = torch::arange(-reach, reach + 1, real);             // [C], pitches
+  const auto whole = ((phase_d.unsqueeze(1) + offsets.unsqueeze(0) * pitch).abs() < 1.0 - edge_margin).unsqueeze(1);
+  // Cell c holds the spot of aperture c - step + (count - 1) / 2 (in pitches;
+  // an even count's half pitch is in the step).
+  const auto aperture =
+      (offsets.unsqueeze(0) - steps.detach().to(torch::kDouble).reshape({-1, 1}) / pitch + 0.5 * (count - 1)).round();
+  const auto in_array = ((aperture >= 0) & (aperture < count)).unsqueeze(0);  // [1, K, C]
+  return ((lit_cell & ~in_array) | (~lit_cell & whole & in_array)).sum(2).to(phase.scalar_type());
+}
+
 }  // namespace dss

@@ -1,7 +1,8 @@
-// Whole lattice pitches from the aperture code, for masks whose aperture
-// diameters differ so that the visible spots tell which apertures they come
-// from (wide_ma: every 2 x 2 neighbourhood of diameters is unique). Internal
-// to the SSCNN head (torch).
+// Whole lattice pitches from where the spots are: the aperture code, for
+// masks whose aperture diameters differ so that the visible spots tell which
+// apertures they come from (wide_ma: every 2 x 2 neighbourhood of diameters
+// is unique), and the spots' presence along each axis for the other
+// lattices. Internal to the SSCNN head (torch).
 #pragma once
 
 #include <torch/types.h>
@@ -30,5 +31,20 @@ struct LatticeCode {
 // image of each site.
 torch::Tensor codeLatticeSteps(const LatticeCode& code, const torch::Tensor& phase, const torch::Tensor& xy,
                                const torch::Tensor& lit, const torch::Tensor& index, std::int64_t batch);
+
+// One axis of a lattice whose whole pitches the centroid resolves
+// (LatticeResolve::kCentroid): for each candidate placement, the lattice
+// centre's spot at phase + steps[k] (normalized), the cells along the axis
+// (columns or rows of spots, one pitch apart from the phase) that contradict
+// it: a lit one (min_spot_sites or more lit sites) with no aperture there, or
+// a dark one with an aperture there whose centre is wholly on the detector
+// (edge_margin). Counted per column or row, a spot that a ghost or debris has
+// dimmed below the threshold does not count against the right placement
+// while its neighbours along the other axis are lit. Not differentiable.
+// phase [B]; steps [K]; position [N] of the sites along the axis; lit [N];
+// index [N]. Returns [B, K].
+torch::Tensor axisContradictions(double pitch, int count, double edge_margin, int min_spot_sites,
+                                 const torch::Tensor& phase, const torch::Tensor& steps, const torch::Tensor& position,
+                                 const torch::Tensor& lit, const torch::Tensor& index, std::int64_t batch);
 
 }  // namespace dss

@@ -329,8 +329,23 @@ SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const 
       code.max_shift_y = geometric_prior_extent_[1].item<double>();
     }
     reading.code_steps = codeLatticeSteps(code, reading.phase, xy, lit, index, batch);
+  } else if (arch_.lattice_resolve == LatticeResolve::kCentroid) {
+    for (int axis = 0; axis < 2; ++axis)
+      reading.contradictions[axis] = axisContradictions(
+          axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y,
+          axis == 0 ? arch_.lattice_columns : arch_.lattice_rows, arch_.wholeSpotMargin(), LatticeCode{}.min_spot_sites,
+          reading.phase.select(1, axis), latticeSteps(axis, xy.options()), xy.select(1, axis), lit, index, batch);
   }
   return reading;
+}
+
+torch::Tensor SscnnNetImpl::latticeSteps(int axis, const torch::TensorOptions& options) const {
+  const double pitch = axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y;
+  const int count = axis == 0 ? arch_.lattice_columns : arch_.lattice_rows;
+  // With an even count the spots sit half a pitch off the lattice centre.
+  const double half_pitch = count % 2 == 0 ? 0.5 : 0.0;
+  const int reach = static_cast<int>(std::ceil(std::max(1.5, 0.5 * count * pitch) / pitch)) + 1;
+  return (torch::arange(-reach, reach + 1, options) + half_pitch) * pitch;
 }
 
 torch::Tensor SscnnNetImpl::resolveLattice(const SpotReading& spots, const torch::Tensor& class_logits,
@@ -354,11 +369,7 @@ torch::Tensor SscnnNetImpl::resolveLattice(const SpotReading& spots, const torch
     const double pitch = axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y;
     const int count = axis == 0 ? arch_.lattice_columns : arch_.lattice_rows;
     const torch::Tensor phase = spots.phase.slice(1, axis, axis + 1);
-    // Candidate shifts: the phase plus whole pitches (with an even count the
-    // spots sit half a pitch off the lattice centre).
-    const double half_pitch = count % 2 == 0 ? 0.5 : 0.0;
-    const int reach = static_cast<int>(std::ceil(std::max(1.5, 0.5 * count * pitch) / pitch)) + 1;
-    const torch::Tensor steps = (torch::arange(-reach, reach + 1, phase.options()) + half_pitch) * pitch;  // [K]
+    const torch::Tensor steps = latticeSteps(axis, phase.options());  // [K]
     torch::Tensor chosen_step;
     {
       torch::NoGradGuard no_grad;  // a discrete choice: gradients flow through the phase only
@@ -368,8 +379,11 @@ torch::Tensor SscnnNetImpl::resolveLattice(const SpotReading& spots, const torch
         mismatch = (candidates - class_estimate.slice(1, axis, axis + 1)).abs();
       } else {
         // Each candidate predicts the centroid of the spots it leaves on the
-        // detector (fading out over a spot radius at the edge); the one
-        // nearest the measured centroid wins.
+        // detector (fading out over a spot radius at the edge); among those
+        // the spots' presence does not contradict, the one nearest the
+        // measured centroid wins. (The centroid alone, weighted by brightness,
+        // goes wrong where a ghost brightens some spots and, through the
+        // exposure, dims the others.)
         const torch::Tensor offsets = (torch::arange(count, phase.options()) - 0.5 * (count - 1)) * pitch;  // [n]
         const torch::Tensor lattice = candidates.unsqueeze(2) + offsets.view({1, 1, -1});                   // [B, K, n]
         const torch::Tensor visible = ((1.0 - lattice.abs()) / arch_.lattice_spot_radius + 0.5).clamp(0.0, 1.0);
@@ -377,6 +391,7 @@ torch::Tensor SscnnNetImpl::resolveLattice(const SpotReading& spots, const torch
         const torch::Tensor predicted = (visible * lattice).sum(2) / visible_total.clamp_min(1e-6);
         mismatch = (predicted - spots.centroid.slice(1, axis, axis + 1).detach()).abs() +
                    (visible_total < 1e-3).to(predicted.scalar_type()) * 1e6;
+        if (spots.contradictions[axis].defined()) mismatch = mismatch + spots.contradictions[axis] * 1e3;
       }
       chosen_step = steps.index_select(0, mismatch.argmin(1)).unsqueeze(1);
     }

@@ -89,9 +89,12 @@ class SscnnNetImpl : public torch::nn::Module {
   // lit [N] (1 for a lit site) and image index [N]: the weighted centroid
   // [B, 2] and, with the lattice head, the phase of the positions modulo the
   // lattice pitch [B, 2] (from the whole spots: lattice_whole_spot_phase)
-  // and, with the aperture code, the whole pitches it gives [B, 2].
+  // and, with the aperture code, the whole pitches it gives [B, 2], else
+  // per axis the contradictions of each candidate placement [B, K]
+  // (axisContradictions over latticeSteps).
   struct SpotReading {
     torch::Tensor centroid, phase, code_steps;
+    std::array<torch::Tensor, 2> contradictions;
   };
   SpotReading readSpots(const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& lit,
                         const torch::Tensor& index, std::int64_t batch) const;
@@ -100,6 +103,9 @@ class SscnnNetImpl : public torch::nn::Module {
   // the class probabilities or the coarse centroid imply, first defined first.
   torch::Tensor resolveLattice(const SpotReading& spots, const torch::Tensor& class_logits,
                                const torch::Tensor& known_classes) const;
+  // Candidate lattice-centre positions relative to the phase along an axis
+  // (whole pitches, plus half a pitch for an even count) [K].
+  torch::Tensor latticeSteps(int axis, const torch::TensorOptions& options) const;
   SscnnOutput head(const torch::Tensor& pooled, const SpotReading& spots, const torch::Tensor& known_classes);
   // Normalized angles of the physics prior at a position [B, 2].
   torch::Tensor priorAngles(const torch::Tensor& position) const;
