@@ -52,7 +52,7 @@ TEST(Report, SmallReportHasEveryPlotAndFigure) {
     const std::size_t start = summary.rfind('"', at) + 1;
     plots.push_back(summary.substr(start, at + 4 - start));
   }
-  EXPECT_EQ(plots.size(), 4u + 3u + 8u);  // 4 maps, histogram, error vs truth, reliability, 8 sweeps
+  EXPECT_EQ(plots.size(), 4u + 3u + 10u);  // 4 maps, histogram, error vs truth, reliability, 10 sweeps
   for (const auto& p : plots) {
     const std::string bytes = readFile(options.out_dir + "/" + p);
     ASSERT_GT(bytes.size(), 8u) << p;
@@ -64,7 +64,8 @@ TEST(Report, SmallReportHasEveryPlotAndFigure) {
   for (const char* key :
        {"\"sscnn\": {", "\"baseline\": {", "\"alpha_mean_deg\"", "\"alpha_within_1sigma\"", "\"beta_within_2sigma\"",
         "\"sscnn_false_alarm_rate\"", "\"reliability_sscnn_alpha\"", "\"reliability_baseline_beta\"",
-        "\"robustness\": [", "\"term\": \"hot_pixels\"", "\"term\": \"debris\"", "\"sscnn_valid_rate\"",
+        "\"robustness\": [", "\"term\": \"shot_noise\"", "\"term\": \"hot_pixels\"", "\"term\": \"debris\"",
+        "\"term\": \"as_built\"", "\"sscnn_valid_rate\"",
         "\"baseline_mean_deg\"", "\"published_sscnn\"", "\"provenance\""})
     EXPECT_NE(summary.find(key), std::string::npos) << key;
   // The published-protocol model on grid positions it never saw: about 0.001 deg per axis.

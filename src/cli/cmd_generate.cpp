@@ -36,14 +36,13 @@ std::vector<std::string> anomalyOverrides(const std::string& spec) {
     } else if (name == "hot_pixels") {
       out.push_back("anomalies.hot_pixels.count=" + value);
     } else if (name == "as_built") {
-      // Nominal manufacturing tolerances, scaled.
-      const double s = std::stod(value);
-      out.push_back("as_built.height_sigma_um=" + std::to_string(20.0 * s));
-      out.push_back("as_built.offset_sigma_um=" + std::to_string(10.0 * s));
-      out.push_back("as_built.rotation_sigma_deg=" + std::to_string(0.2 * s));
-      out.push_back("as_built.tilt_sigma_deg=" + std::to_string(0.1 * s));
-      out.push_back("as_built.aperture_position_sigma_um=" + std::to_string(1.0 * s));
-      out.push_back("as_built.aperture_diameter_sigma_um=" + std::to_string(1.0 * s));
+      const AsBuiltConfig ab = asBuiltTolerances(std::stod(value));
+      out.push_back("as_built.height_sigma_um=" + std::to_string(ab.height_sigma_um));
+      out.push_back("as_built.offset_sigma_um=" + std::to_string(ab.offset_sigma_um));
+      out.push_back("as_built.rotation_sigma_deg=" + std::to_string(ab.rotation_sigma_deg));
+      out.push_back("as_built.tilt_sigma_deg=" + std::to_string(ab.tilt_sigma_deg));
+      out.push_back("as_built.aperture_position_sigma_um=" + std::to_string(ab.aperture_position_sigma_um));
+      out.push_back("as_built.aperture_diameter_sigma_um=" + std::to_string(ab.aperture_diameter_sigma_um));
     } else {
       throw UsageError("--anomalies: unknown anomaly '" + name +
                        "' (expected stray_light, ghost, debris, hot_pixels or as_built)");

@@ -111,6 +111,7 @@ struct Term {
 
 std::vector<Term> terms() {
   return {
+      {"shot_noise", "shot noise", "off / on", {0, 1}, [](SensorConfig& c, double v) { c.noise.shot_noise = v > 0; }},
       {"read_noise", "read noise", "e-", {0, 3, 10, 30}, [](SensorConfig& c, double v) { c.noise.read_noise_e = v; }},
       {"dark_current",
        "dark current (temperature)",
@@ -151,6 +152,17 @@ std::vector<Term> terms() {
          const double apertures = static_cast<double>(std::max<std::size_t>(1, c.mask.apertures.size()));
          c.anomalies.debris_probability = v > 0 ? 1.0 / apertures : 0.0;
          c.anomalies.debris_max_blocked_fraction = v;
+       }},
+      {"as_built",
+       "as-built errors (mount, aperture positions)",
+       "x typical tolerances",
+       {0, 0.3, 1, 3},
+       [](SensorConfig& c, double v) {
+         c.as_built = asBuiltTolerances(v);
+         // Diameter errors give every aperture of every drawn sensor its own
+         // diffraction pattern to compute, minutes on 49 apertures: left to
+         // the anomaly tables (dss generate --anomalies as_built=S).
+         c.as_built.aperture_diameter_sigma_um = 0.0;
        }},
   };
 }

@@ -346,6 +346,17 @@ double DetectorNoiseConfig::darkCurrentAtTemperatureEPerS() const {
   return dark_current_e_per_s * std::pow(2.0, (temperature_c - dark_reference_temp_c) / dark_doubling_temp_c);
 }
 
+AsBuiltConfig asBuiltTolerances(double scale) {
+  AsBuiltConfig ab;
+  ab.height_sigma_um = 20.0 * scale;
+  ab.offset_sigma_um = 10.0 * scale;
+  ab.rotation_sigma_deg = 0.2 * scale;
+  ab.tilt_sigma_deg = 0.1 * scale;
+  ab.aperture_position_sigma_um = 1.0 * scale;
+  ab.aperture_diameter_sigma_um = 1.0 * scale;
+  return ab;
+}
+
 SensorConfig loadSensorConfig(const std::string& path, const std::vector<std::string>& overrides) {
   std::string text;
   try {

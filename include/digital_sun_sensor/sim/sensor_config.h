@@ -127,6 +127,11 @@ struct AsBuiltConfig {
   double aperture_diameter_sigma_um = 0.0;
 };
 
+// Typical manufacturing tolerances times `scale` (`as_built=S` of `dss
+// generate --anomalies`): 1 sigma of 20 um mask height, 10 um offset, 0.2 deg
+// rotation, 0.1 deg tilt, 1 um aperture position and 1 um diameter.
+AsBuiltConfig asBuiltTolerances(double scale);
+
 struct AnomalyConfig {
   // Stray light / Earth albedo: smooth gradient, per image with a probability.
   double stray_light_probability = 0.0;
