@@ -5,7 +5,7 @@
 # bag, then `dss eval` of the model and of the centroid baseline (calibrated on
 # the first 1000 training images, shipped as models/<sensor>.calib.yaml:
 # calibration_node's fallback) on the same test bag. Bags go to DATA_DIR (default .ws/models_data), never into git.
-#   scripts/train_models.sh [SENSOR...]     (default: thesis_sa thesis_ma wide_ma)
+#   scripts/train_models.sh [SENSOR...]     (default: thesis_sa thesis_ma wide_ma thesis_sa_t50)
 # Bags and finished models already present are reused; an interrupted training
 # resumes from its checkpoint. Results: DATA_DIR/<sensor>.*.json.
 set -euo pipefail
@@ -19,11 +19,12 @@ recipe() {
     thesis_sa) echo "60000 501 502 45 resnet18_w32 503" ;;
     thesis_ma) echo "60000 511 512 22 resnet10_w16 513" ;;
     wide_ma) echo "24000 521 522 10 resnet10_w16 523" ;;
+    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
 
-for sensor in "${@:-thesis_sa thesis_ma wide_ma}"; do
+for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
   for s in $sensor; do
     read -r count train_seed test_seed epochs arch sigma_seed <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"

@@ -61,12 +61,11 @@ TEST(Report, SmallReportHasEveryPlotAndFigure) {
     EXPECT_FALSE(image.empty()) << p << " does not decode";
     EXPECT_NE(html.find("src=\"" + p + "\""), std::string::npos) << p << " is not in index.html";
   }
-  for (const char* key :
-       {"\"sscnn\": {", "\"baseline\": {", "\"alpha_mean_deg\"", "\"alpha_within_1sigma\"", "\"beta_within_2sigma\"",
-        "\"sscnn_false_alarm_rate\"", "\"reliability_sscnn_alpha\"", "\"reliability_baseline_beta\"",
-        "\"robustness\": [", "\"term\": \"shot_noise\"", "\"term\": \"hot_pixels\"", "\"term\": \"debris\"",
-        "\"term\": \"as_built\"", "\"sscnn_valid_rate\"",
-        "\"baseline_mean_deg\"", "\"published_sscnn\"", "\"provenance\""})
+  for (const char* key : {"\"sscnn\": {", "\"baseline\": {", "\"alpha_mean_deg\"", "\"alpha_within_1sigma\"",
+                          "\"beta_within_2sigma\"", "\"sscnn_false_alarm_rate\"", "\"reliability_sscnn_alpha\"",
+                          "\"reliability_baseline_beta\"", "\"robustness\": [", "\"term\": \"shot_noise\"",
+                          "\"term\": \"hot_pixels\"", "\"term\": \"debris\"", "\"term\": \"as_built\"",
+                          "\"sscnn_valid_rate\"", "\"baseline_mean_deg\"", "\"published_sscnn\"", "\"provenance\""})
     EXPECT_NE(summary.find(key), std::string::npos) << key;
   // The published-protocol model on grid positions it never saw: about 0.001 deg per axis.
   const std::size_t protocol = summary.find("\"published_protocol\": {");
