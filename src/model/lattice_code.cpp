@@ -8,6 +8,14 @@
 namespace dss {
 namespace {
 
+// The lattice index of the aperture whose spot each cell holds, for each
+// candidate step [K, C] (not clamped): cell c (in pitches from the phase)
+// holds aperture c - step + (count - 1) / 2 when the lattice centre's spot
+// is at the phase plus `step` pitches (an even count's half pitch included).
+torch::Tensor apertureAt(const torch::Tensor& steps, const torch::Tensor& cell_offsets, int count) {
+  return (cell_offsets.unsqueeze(0) - steps.unsqueeze(1) + 0.5 * (count - 1)).round();
+}
+
 // One axis of the placement search: cells -reach..reach around the phase, and
 // candidate steps k (lattice centre at phase + (k + half) pitch).
 struct AxisPlan {
@@ -26,8 +34,7 @@ struct AxisPlan {
     const auto real = torch::TensorOptions().dtype(torch::kDouble);
     cell_offsets = torch::arange(-reach, reach + 1, real);
     steps = torch::arange(-step_reach, step_reach + 1, real) + half;
-    // Spot of cell c = phase + c pitch = centre + (a - (count - 1) / 2) pitch.
-    aperture = (cell_offsets.unsqueeze(0) - steps.unsqueeze(1) + 0.5 * (count - 1)).round().to(torch::kLong);
+    aperture = apertureAt(steps, cell_offsets, count).to(torch::kLong);
     in_array = (aperture >= 0) & (aperture < count);
     aperture = aperture.clamp(0, count - 1);
   }
@@ -128,10 +135,7 @@ torch::Tensor axisContradictions(double pitch, int count, double edge_margin, in
   const auto lit_cell = lit_sites >= static_cast<double>(min_spot_sites);  // [B, 1, C]
   const auto offsets = torch::arange(-reach, reach + 1, real);             // [C], pitches
   const auto whole = ((phase_d.unsqueeze(1) + offsets.unsqueeze(0) * pitch).abs() < 1.0 - edge_margin).unsqueeze(1);
-  // Cell c holds the spot of aperture c - step + (count - 1) / 2 (in pitches;
-  // an even count's half pitch is in the step).
-  const auto aperture =
-      (offsets.unsqueeze(0) - steps.detach().to(torch::kDouble).reshape({-1, 1}) / pitch + 0.5 * (count - 1)).round();
+  const auto aperture = apertureAt(steps.detach().to(torch::kDouble).reshape({-1}) / pitch, offsets, count);
   const auto in_array = ((aperture >= 0) & (aperture < count)).unsqueeze(0);  // [1, K, C]
   return ((lit_cell & ~in_array) | (~lit_cell & whole & in_array)).sum(2).to(phase.scalar_type());
 }

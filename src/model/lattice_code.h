@@ -9,6 +9,9 @@
 
 namespace dss {
 
+// Fewer lit sites than this in a lattice cell (or column, or row): no spot there.
+constexpr int kMinSpotSites = 5;
+
 struct LatticeCode {
   double pitch_x = 0.0, pitch_y = 0.0;  // normalized detector units
   int columns = 1, rows = 1;
@@ -17,7 +20,7 @@ struct LatticeCode {
   // cut: its size is not compared, and its absence is no evidence.
   double edge_margin = 0.1;
   double max_shift_x = 1e9, max_shift_y = 1e9;  // |lattice-centre position| the field of view allows
-  int min_spot_sites = 5;                       // fewer lit sites in a cell: no spot there
+  int min_spot_sites = kMinSpotSites;
 };
 
 // For each image, the lattice-centre spot position minus the phase [B, 2]

@@ -333,7 +333,7 @@ SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const 
     for (int axis = 0; axis < 2; ++axis)
       reading.contradictions[axis] = axisContradictions(
           axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y,
-          axis == 0 ? arch_.lattice_columns : arch_.lattice_rows, arch_.wholeSpotMargin(), LatticeCode{}.min_spot_sites,
+          axis == 0 ? arch_.lattice_columns : arch_.lattice_rows, arch_.wholeSpotMargin(), kMinSpotSites,
           reading.phase.select(1, axis), latticeSteps(axis, xy.options()), xy.select(1, axis), lit, index, batch);
   }
   return reading;
