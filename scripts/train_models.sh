@@ -13,20 +13,21 @@ source "$(dirname "$0")/dss_env.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
 mkdir -p "$DATA" "$ROOT/models"
 
-# sensor, training images, training seed, test seed, epochs, architecture, sigma-calibration seed
+# sensor, training images, training seed, test seed, epochs, architecture, sigma-calibration seed,
+# centroid weighting
 recipe() {
   case "$1" in
-    thesis_sa) echo "60000 501 502 45 resnet18_w32 503" ;;
-    thesis_ma) echo "60000 511 512 22 resnet10_w16 513" ;;
-    wide_ma) echo "24000 521 522 10 resnet10_w16 523" ;;
-    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543" ;;
+    thesis_sa) echo "60000 501 502 45 resnet18_w32 503 learned" ;;
+    thesis_ma) echo "60000 511 512 22 resnet10_w16 513 learned" ;;
+    wide_ma) echo "24000 521 522 7 resnet10_w16 523 value" ;;
+    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
 
 for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
   for s in $sensor; do
-    read -r count train_seed test_seed epochs arch sigma_seed <<<"$(recipe "$s")"
+    read -r count train_seed test_seed epochs arch sigma_seed weighting <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
     model="$ROOT/models/$s.dssmodel" calib="$ROOT/models/$s.calib.yaml" ckpt="$DATA/$s.ckpt"
     sigma="$DATA/$s.sigma.bag"
@@ -36,7 +37,7 @@ for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
     if [ ! -f "$model" ]; then
       resume=()
       [ -f "$ckpt" ] && resume=(--resume "$ckpt")
-      "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" --lr 5e-4 --seed 1 "${resume[@]}" \
+      "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" --centroid-weighting "$weighting" --lr 5e-4 --seed 1 "${resume[@]}" \
         | tee "$DATA/$s.train.json"
       # sigma (level, or a constant per axis) and the input envelope from fresh images
       "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" | tee "$DATA/$s.sigma.json"

@@ -9,6 +9,7 @@
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sparse/ops.h"
 #include "digital_sun_sensor/sparse/threads.h"
 
 namespace dss {
@@ -125,6 +126,42 @@ TEST(Sscnn, ConstantSigmaIsPredictedForEveryImage) {
     EXPECT_NEAR(std::sqrt(p.beta_variance_rad2), 2.6e-5, 1e-10);
   }
   EXPECT_THROW(m.setConstantSigma(0.0, 1e-5), std::invalid_argument);
+}
+
+// Untrained, the centroid branch is the plain centre of the lit sites
+// (learned weights) or their intensity-weighted centroid (value weighting),
+// which the linear prior maps to the angles; the sparse and dense forward
+// passes agree, and the choice survives the model file.
+TEST(Sscnn, CentroidWeightingStartsAsPlainOrIntensityWeightedCentroid) {
+  const SensorConfig c = shipped("thesis_sa");
+  ArchSpec arch = archPreset("resnet10_w16", c.numSubFovClasses());
+  const Model plain = createModel(c, arch, 4);
+  arch.centroid_weighting = CentroidWeighting::kValue;
+  const Model weighted = createModel(c, arch, 4);
+  torch::NoGradGuard no_grad;
+  const auto input = encodeImages(imageList(), plain.meta.input, torch::kDouble);
+  plain.net->to(torch::kDouble);
+  weighted.net->to(torch::kDouble);
+  const auto index = sparse::batchIndex(*input.sites);
+  const auto value = input.features.slice(1, 0, 1), xy = input.features.slice(1, 1, 3);
+  auto centroid = [&](const torch::Tensor& w) {
+    const auto sum = [&](const torch::Tensor& v) {
+      return torch::zeros({input.sites->batchSize(), v.size(1)}, v.options()).index_add(0, index, v);
+    };
+    return sum(w * xy) / sum(w);
+  };
+  const auto plain_centroid = centroid(torch::ones_like(value)), weighted_centroid = centroid(value);
+  ASSERT_GT((plain_centroid - weighted_centroid).abs().max().item<double>(), 1e-4);  // the test tells them apart
+  const auto plain_angles = plain.net->forward(input).angles, weighted_angles = weighted.net->forward(input).angles;
+  const auto slope = plain_angles[0] / plain_centroid[0];  // the linear prior, per axis
+  EXPECT_LT((plain_angles - plain_centroid * slope).abs().max().item<double>(), 1e-9);
+  EXPECT_LT((weighted_angles - weighted_centroid * slope).abs().max().item<double>(), 1e-9);
+  const auto dense = encodeImagesDense(imageList(), weighted.meta.input).to(torch::kDouble);
+  EXPECT_LT((weighted.net->forwardDense(dense).angles - weighted_angles).abs().max().item<double>(), 1e-9);
+  const Model loaded = deserializeModel(serializeModel(weighted), "weighted", &c);
+  EXPECT_EQ(loaded.meta.arch.centroid_weighting, CentroidWeighting::kValue);
+  EXPECT_EQ(deserializeModel(serializeModel(plain), "plain", &c).meta.arch.centroid_weighting,
+            CentroidWeighting::kLearned);
 }
 
 TEST(ModelFile, BatchNormVariantKeepsItsRunningStatistics) {

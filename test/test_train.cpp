@@ -181,6 +181,14 @@ TEST(Train, InitModelGivesTheStartingWeights) {
   options.arch = "resnet18_w32";
   EXPECT_THROW(Trainer(tinySensor(), train, validation, options), std::invalid_argument);
   options.arch = "";
+  options.centroid_weighting = "value";  // the init model's is learned
+  try {
+    Trainer(tinySensor(), train, validation, options);
+    ADD_FAILURE() << "an init model of another centroid weighting was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("has centroid weighting learned, not value"), std::string::npos) << e.what();
+  }
+  options.centroid_weighting = "";
   options.init_model = tempPath("missing.dssmodel");
   try {
     Trainer(tinySensor(), train, validation, options);
@@ -212,6 +220,9 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
   TrainOptions other_seed = options;
   other_seed.seed = 4;
   EXPECT_NE(resumeError(other_seed, train).find("seed"), std::string::npos);
+  TrainOptions other_weighting = options;
+  other_weighting.centroid_weighting = "value";
+  EXPECT_NE(resumeError(other_weighting, train).find("centroid_weighting"), std::string::npos);
   TrainingSet fewer{train.spec()};
   for (std::size_t i = 1; i < train.size(); ++i) fewer.add(train.samples()[i]);
   EXPECT_NE(resumeError(options, fewer).find("different training data"), std::string::npos);
@@ -228,6 +239,14 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
   TrainOptions bad = options;
   bad.batch_size = 0;
   EXPECT_THROW(Trainer(tinySensor(), train, validation, bad), std::invalid_argument);
+  bad = options;
+  bad.centroid_weighting = "brightest";
+  try {
+    Trainer(tinySensor(), train, validation, bad);
+    ADD_FAILURE() << "an unknown centroid weighting was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("'learned' or 'value', not 'brightest'"), std::string::npos) << e.what();
+  }
   AugmentationConfig aug;
   EXPECT_THROW(setAugmentation(aug, "nosie_probability=0.1"), std::invalid_argument);
   EXPECT_THROW(setAugmentation(aug, "noise_probability=x"), std::invalid_argument);

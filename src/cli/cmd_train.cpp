@@ -40,6 +40,10 @@ int runTrain(int argc, char** argv) {
            "architecture (resnet34, resnet18, resnet18_w32, resnet10_w16; default: the --init model's, else " +
                defaultArchName() + ")",
            "", false, false},
+          {"centroid-weighting", "W",
+           "site weights of the centroid branch: learned (equal at the start) or value (the intensity-weighted "
+           "centroid at the start); default: the --init model's, else learned",
+           "", false, false},
           {"init", "MODEL", "start from this model's weights (fine-tuning; it must suit the sensor)", "", false, false},
           {"resume", "CKPT", "continue from this checkpoint", "", false, false},
           {"checkpoint", "CKPT", "checkpoint file (default: MODEL.ckpt, or the --resume file)", "", false, false},
@@ -66,6 +70,7 @@ int runTrain(int argc, char** argv) {
   TrainOptions options;
   options.arch = args.get("arch");
   options.init_model = args.get("init");
+  options.centroid_weighting = args.get("centroid-weighting");
   options.epochs = static_cast<int>(args.getInt("epochs"));
   options.batch_size = static_cast<int>(args.getInt("batch"));
   options.learning_rate = args.getDouble("lr");

@@ -4,6 +4,16 @@
 
 namespace dss {
 
+const char* centroidWeightingName(CentroidWeighting weighting) {
+  return weighting == CentroidWeighting::kValue ? "value" : "learned";
+}
+
+CentroidWeighting parseCentroidWeighting(const std::string& name) {
+  for (const auto w : {CentroidWeighting::kLearned, CentroidWeighting::kValue})
+    if (name == centroidWeightingName(w)) return w;
+  throw std::invalid_argument("centroid weighting must be 'learned' or 'value', not '" + name + "'");
+}
+
 void ArchSpec::validate() const {
   auto fail = [&](const std::string& what) { throw std::invalid_argument("architecture '" + name + "': " + what); };
   if (input_channels != 3) fail("input_channels must be 3 (value, x, y)");

@@ -153,6 +153,7 @@ std::string metadataToYaml(const ModelMetadata& m) {
   e << YAML::Key << "batch_norm" << YAML::Value << m.arch.batch_norm;
   e << YAML::Key << "centroid_pool" << YAML::Value << m.arch.centroid_pool;
   e << YAML::Key << "centroid_width" << YAML::Value << m.arch.centroid_width;
+  e << YAML::Key << "centroid_weighting" << YAML::Value << centroidWeightingName(m.arch.centroid_weighting);
   e << YAML::Key << "centroid_degree" << YAML::Value << m.arch.centroid_degree;
   e << YAML::Key << "residual_scale" << YAML::Value << m.arch.residual_scale;
   if (m.arch.latticeHead()) {
@@ -209,6 +210,13 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   m.arch.batch_norm = get<bool>(a, "batch_norm", origin, "arch.");
   m.arch.centroid_pool = get<bool>(a, "centroid_pool", origin, "arch.");
   m.arch.centroid_width = get<int>(a, "centroid_width", origin, "arch.");
+  if (a["centroid_weighting"]) {  // absent in models made before it existed: learned
+    try {
+      m.arch.centroid_weighting = parseCentroidWeighting(get<std::string>(a, "centroid_weighting", origin, "arch."));
+    } catch (const std::invalid_argument& e) {
+      throw ModelError(origin + ": metadata key 'arch.centroid_weighting': " + e.what());
+    }
+  }
   m.arch.centroid_degree = get<int>(a, "centroid_degree", origin, "arch.");
   m.arch.residual_scale = get<double>(a, "residual_scale", origin, "arch.");
   if (a["lattice_pitch_x"]) {  // absent in models without the lattice head

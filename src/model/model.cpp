@@ -98,9 +98,13 @@ GeometricPrior geometricPrior(const SensorConfig& config, int size, double angle
 }  // namespace
 
 Model createModel(const SensorConfig& config, const std::string& arch_name, std::uint64_t seed) {
+  return createModel(config, archPreset(arch_name, config.numSubFovClasses()), seed);
+}
+
+Model createModel(const SensorConfig& config, const ArchSpec& arch, std::uint64_t seed) {
   torch::manual_seed(seed);
   Model m;
-  m.meta = metadataFor(config, archPreset(arch_name, config.numSubFovClasses()));
+  m.meta = metadataFor(config, arch);
   m.net = std::make_shared<SscnnNetImpl>(m.meta.arch);
   const auto [slope_x, slope_y] = centroidSlopes(config, m.meta.angle_scale_rad);
   m.net->initCentroidMap(slope_x, slope_y);

@@ -284,6 +284,12 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
   return result;
 }
 
+torch::Tensor SscnnNetImpl::centroidWeights(const torch::Tensor& logits, const torch::Tensor& value) const {
+  const torch::Tensor learned = torch::softplus(logits);  // log(2) where the branch outputs 0 (its start)
+  if (arch_.centroid_weighting == CentroidWeighting::kLearned) return learned;
+  return value * learned * (1.0 / std::log(2.0));
+}
+
 SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const torch::Tensor& xy,
                                                   const torch::Tensor& lit, const torch::Tensor& index,
                                                   std::int64_t batch) const {
@@ -415,10 +421,11 @@ SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor
     // Learned weights w >= 0 per input site from the local pixel values only
     // (translation-equivariant: no position-dependent bias); centroid =
     // sum(w xy) / sum(w) per image.
-    SparseTensor c = centroid_conv1_->forward(input.with(input.features.slice(1, 0, 1).contiguous()));
+    const torch::Tensor value = input.features.slice(1, 0, 1).contiguous();
+    SparseTensor c = centroid_conv1_->forward(input.with(value));
     c = centroid_conv2_->forward(c.with(torch::relu(c.features)));
     // Every site of the sparse input is lit.
-    spots = readSpots(torch::softplus(c.features), input.features.slice(1, 1, 3),
+    spots = readSpots(centroidWeights(c.features, value), input.features.slice(1, 1, 3),
                       torch::ones({input.features.size(0)}, input.features.options()), sparse::batchIndex(*input.sites),
                       input.sites->batchSize());
   }
@@ -437,7 +444,7 @@ SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
     const auto value = input.slice(1, 0, 1);
     const auto active = (value != 0).to(value.scalar_type());
     const auto c = torch::relu(centroid_conv1_->forwardDense(value)) * active;
-    const auto w = torch::softplus(centroid_conv2_->forwardDense(c)) * active;
+    const auto w = centroidWeights(centroid_conv2_->forwardDense(c), value) * active;
     // Every pixel as a site (inactive ones weigh 0), in the sparse branch's layout.
     const auto batch = input.size(0), pixels = input.size(2) * input.size(3);
     const auto index = torch::arange(batch, torch::TensorOptions().dtype(torch::kLong)).repeat_interleave(pixels);

@@ -29,6 +29,7 @@ TrainOptions optionsFromParams(const ros::NodeHandle& pnh) {
   TrainOptions o;
   o.arch = pnh.param<std::string>("arch", "");
   o.init_model = pnh.param<std::string>("init_model", "");
+  o.centroid_weighting = pnh.param<std::string>("centroid_weighting", "");
   o.batch_size = pnh.param("batch_size", o.batch_size);
   o.epochs = pnh.param("epochs", o.epochs);
   o.patience_epochs = pnh.param("patience_epochs", o.patience_epochs);

@@ -133,6 +133,13 @@ void TrainOptions::validate() const {
   require(checkpoint_interval_s > 0, "checkpoint_interval_s must be positive");
   require(progress_interval_s >= 0, "progress_interval_s must be >= 0");
   require(aten_threads >= 1 && blas_threads >= 1, "aten_threads and blas_threads must be >= 1");
+  if (!centroid_weighting.empty()) {
+    try {
+      parseCentroidWeighting(centroid_weighting);
+    } catch (const std::invalid_argument& e) {
+      require(false, std::string("centroid_weighting: ") + e.what());
+    }
+  }
   const auto& a = augmentation;
   for (double p : {a.gain_probability, a.noise_probability, a.threshold_probability, a.dropout_probability})
     require(p >= 0 && p <= 1, "augmentation probabilities must be in [0, 1]");
@@ -170,9 +177,17 @@ struct Trainer::Impl {
       if (model.meta.arch.name != options.arch)
         throw std::invalid_argument("training option init_model: " + options.init_model + " is " +
                                     model.meta.arch.name + ", not " + options.arch);
+      const std::string weighting = centroidWeightingName(model.meta.arch.centroid_weighting);
+      if (options.centroid_weighting.empty()) options.centroid_weighting = weighting;
+      if (options.centroid_weighting != weighting)
+        throw std::invalid_argument("training option init_model: " + options.init_model + " has centroid weighting " +
+                                    weighting + ", not " + options.centroid_weighting);
     } else {
       if (options.arch.empty()) options.arch = defaultArchName();
-      model = createModel(sensor, options.arch, deriveSeed(options.seed, 0xA7C4));
+      if (options.centroid_weighting.empty()) options.centroid_weighting = "learned";
+      ArchSpec arch = archPreset(options.arch, sensor.numSubFovClasses());
+      arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
+      model = createModel(sensor, arch, deriveSeed(options.seed, 0xA7C4));
     }
     model.net->train();
     optimizer = std::make_unique<torch::optim::AdamW>(
@@ -294,6 +309,7 @@ struct Trainer::Impl {
     e << YAML::BeginMap;
     e << YAML::Key << "sensor" << YAML::Value << sensor.name;
     e << YAML::Key << "arch" << YAML::Value << options.arch;
+    e << YAML::Key << "centroid_weighting" << YAML::Value << options.centroid_weighting;
     e << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
     e << YAML::Key << "epochs" << YAML::Value << options.epochs;
     e << YAML::Key << "seed" << YAML::Value << options.seed;
@@ -339,6 +355,8 @@ struct Trainer::Impl {
       };
       expect("sensor", sensor.name);
       expect("arch", options.arch);
+      if (state["centroid_weighting"])  // absent in checkpoints made before it existed
+        expect("centroid_weighting", options.centroid_weighting);
       expect("batch_size", std::to_string(options.batch_size));
       expect("epochs", std::to_string(options.epochs));
       expect("seed", std::to_string(options.seed));

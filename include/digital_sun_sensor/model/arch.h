@@ -14,6 +14,16 @@ namespace dss {
 // the classes are the apertures, as with kClass).
 enum class LatticeResolve { kCentroid, kClass, kCode };
 
+// How the centroid branch weighs each lit site: by a learned function of its
+// neighbourhood alone (equal weights at the start), or by its value times a
+// learned factor (1 at the start: the intensity-weighted centroid, the
+// baseline's). A weight that does not vanish at the threshold makes pixels
+// flickering across it jump the centroid.
+enum class CentroidWeighting { kLearned, kValue };
+const char* centroidWeightingName(CentroidWeighting weighting);
+// Throws std::invalid_argument for a name other than "learned" or "value".
+CentroidWeighting parseCentroidWeighting(const std::string& name);
+
 struct ArchSpec {
   std::string name;
   int input_channels = 3;  // pixel value, x, y
@@ -25,7 +35,8 @@ struct ArchSpec {
   bool batch_norm = false;    // the published network has none
   bool centroid_pool = true;  // learned intensity-weighted centroid of the input sites
   int centroid_width = 16;    // channels of its weighting branch
-  int centroid_degree = 3;    // the angles get a learned polynomial of the centroid (degree 1..this)
+  CentroidWeighting centroid_weighting = CentroidWeighting::kLearned;
+  int centroid_degree = 3;  // the angles get a learned polynomial of the centroid (degree 1..this)
   // Learned angle terms are multiplied by this (normalized units): on top of the
   // physics prior they are corrections, and Adam's per-step change of a weight
   // is about the learning rate whatever the gradient's size, so their scale

@@ -96,6 +96,9 @@ class SscnnNetImpl : public torch::nn::Module {
     torch::Tensor centroid, phase, code_steps;
     std::array<torch::Tensor, 2> contradictions;
   };
+  // Site weights of the centroid branch (arch.centroid_weighting) from its
+  // output logits and the sites' values, [N, 1] each.
+  torch::Tensor centroidWeights(const torch::Tensor& logits, const torch::Tensor& value) const;
   SpotReading readSpots(const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& lit,
                         const torch::Tensor& index, std::int64_t batch) const;
   // Lattice shift (position of the lattice centre's spot) [B, 2]: the phase

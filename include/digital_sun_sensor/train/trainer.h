@@ -27,6 +27,9 @@ struct TrainOptions {
   // Start from this model file's weights (fine-tuning, e.g. on anomalies)
   // instead of fresh ones; it must suit the sensor and, if given, `arch`.
   std::string init_model;
+  // Site weights of the centroid branch: "learned" or "value" (ArchSpec::
+  // centroid_weighting; empty: the init model's, else "learned").
+  std::string centroid_weighting;
   int batch_size = 64;
   int epochs = 20;                  // the learning-rate schedule spans this many epochs
   int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
