@@ -10,6 +10,7 @@
 # resumes from its checkpoint. Results: DATA_DIR/<sensor>.*.json.
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
+source "$(dirname "$0")/train_steps.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
 mkdir -p "$DATA" "$ROOT/models"
 
@@ -29,22 +30,10 @@ for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
   for s in $sensor; do
     read -r count train_seed test_seed epochs arch sigma_seed weighting <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
-    model="$ROOT/models/$s.dssmodel" calib="$ROOT/models/$s.calib.yaml" ckpt="$DATA/$s.ckpt"
     sigma="$DATA/$s.sigma.bag"
     [ -f "$train" ] || "$DSS" generate --sensor "$cfg" --count "$count" --seed "$train_seed" --out "$train"
     [ -f "$test" ] || "$DSS" generate --sensor "$cfg" --count 10000 --seed "$test_seed" --out "$test"
     [ -f "$sigma" ] || "$DSS" generate --sensor "$cfg" --count 5000 --seed "$sigma_seed" --out "$sigma"
-    if [ ! -f "$model" ]; then
-      resume=()
-      [ -f "$ckpt" ] && resume=(--resume "$ckpt")
-      "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" --centroid-weighting "$weighting" --lr 5e-4 --seed 1 "${resume[@]}" \
-        | tee "$DATA/$s.train.json"
-      # sigma (level, or a constant per axis) and the input envelope from fresh images
-      "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" | tee "$DATA/$s.sigma.json"
-    fi
-    "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$s.sscnn.csv" | tee "$DATA/$s.sscnn.json"
-    "$DSS" calibrate --data "$train" --max-images 1000 --out "$calib" > "$DATA/$s.calibrate.json"
-    "$DSS" eval --data "$test" --estimator "centroid:$calib" --csv "$DATA/$s.centroid.csv" \
-      | tee "$DATA/$s.centroid.json"
+    train_and_evaluate "$s" "$train" "$test" "$sigma" "$epochs" "$arch" --centroid-weighting "$weighting"
   done
 done

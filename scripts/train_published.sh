@@ -12,6 +12,7 @@
 # resumes from its checkpoint.
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
+source "$(dirname "$0")/train_steps.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
 mkdir -p "$DATA"
 
@@ -31,20 +32,9 @@ for sensor in "${@:-thesis_sa thesis_ma}"; do
       --set optics.mode=far_field --set optics.sun_disk.enabled=false --set optics.vignetting=false)
     name="${s}_published"
     train="$DATA/$name.train.bag" test="$DATA/$name.test.bag" sigma="$DATA/$name.sigma.bag"
-    model="$ROOT/models/$name.dssmodel" ckpt="$DATA/$name.ckpt" calib="$ROOT/models/$name.calib.yaml"
     [ -f "$train" ] || "$DSS" generate "${protocol[@]}" --count 30000 --out "$train"
     [ -f "$test" ] || "$DSS" generate "${protocol[@]}" --count 10000 --offset 30000 --out "$test"
     [ -f "$sigma" ] || "$DSS" generate "${protocol[@]}" --count 5000 --offset 40000 --out "$sigma"
-    if [ ! -f "$model" ]; then
-      resume=()
-      [ -f "$ckpt" ] && resume=(--resume "$ckpt")
-      "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --arch resnet10_w16 --epochs "$epochs" \
-        --lr 5e-4 --seed 1 "${resume[@]}" | tee "$DATA/$name.train.json"
-      "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" | tee "$DATA/$name.sigma.json"
-    fi
-    "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$name.sscnn.csv" | tee "$DATA/$name.sscnn.json"
-    "$DSS" calibrate --data "$train" --max-images 1000 --out "$calib" > "$DATA/$name.calibrate.json"
-    "$DSS" eval --data "$test" --estimator "centroid:$calib" --csv "$DATA/$name.centroid.csv" \
-      | tee "$DATA/$name.centroid.json"
+    train_and_evaluate "$name" "$train" "$test" "$sigma" "$epochs" resnet10_w16
   done
 done

@@ -338,16 +338,15 @@ SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const 
   } else if (arch_.lattice_resolve == LatticeResolve::kCentroid) {
     for (int axis = 0; axis < 2; ++axis)
       reading.contradictions[axis] = axisContradictions(
-          axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y,
-          axis == 0 ? arch_.lattice_columns : arch_.lattice_rows, arch_.wholeSpotMargin(), kMinSpotSites,
+          arch_.latticePitch(axis), arch_.latticeCount(axis), arch_.wholeSpotMargin(), kMinSpotSites,
           reading.phase.select(1, axis), latticeSteps(axis, xy.options()), xy.select(1, axis), lit, index, batch);
   }
   return reading;
 }
 
 torch::Tensor SscnnNetImpl::latticeSteps(int axis, const torch::TensorOptions& options) const {
-  const double pitch = axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y;
-  const int count = axis == 0 ? arch_.lattice_columns : arch_.lattice_rows;
+  const double pitch = arch_.latticePitch(axis);
+  const int count = arch_.latticeCount(axis);
   // With an even count the spots sit half a pitch off the lattice centre.
   const double half_pitch = count % 2 == 0 ? 0.5 : 0.0;
   const int reach = static_cast<int>(std::ceil(std::max(1.5, 0.5 * count * pitch) / pitch)) + 1;
@@ -372,8 +371,8 @@ torch::Tensor SscnnNetImpl::resolveLattice(const SpotReading& spots, const torch
   }
   std::vector<torch::Tensor> shift(2);
   for (int axis = 0; axis < 2; ++axis) {
-    const double pitch = axis == 0 ? arch_.lattice_pitch_x : arch_.lattice_pitch_y;
-    const int count = axis == 0 ? arch_.lattice_columns : arch_.lattice_rows;
+    const double pitch = arch_.latticePitch(axis);
+    const int count = arch_.latticeCount(axis);
     const torch::Tensor phase = spots.phase.slice(1, axis, axis + 1);
     const torch::Tensor steps = latticeSteps(axis, phase.options());  // [K]
     torch::Tensor chosen_step;

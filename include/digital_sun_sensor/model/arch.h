@@ -64,6 +64,9 @@ struct ArchSpec {
   int num_classes = 4;  // sub-FOV classes of the sensor
 
   bool latticeHead() const { return lattice_pitch_x > 0.0 && lattice_pitch_y > 0.0; }
+  // Pitch (normalized) and number of apertures along axis 0 (x, columns) or 1 (y, rows).
+  double latticePitch(int axis) const { return axis == 0 ? lattice_pitch_x : lattice_pitch_y; }
+  int latticeCount(int axis) const { return axis == 0 ? lattice_columns : lattice_rows; }
   // Normalized distance from the detector edge inside which a spot's centre
   // must lie for the edge not to cut the spot (whole-spot phase, aperture code).
   double wholeSpotMargin() const { return 2.0 * lattice_spot_radius; }
