@@ -1,22 +1,24 @@
 # Sourced by train_models.sh and train_published.sh (after dss_env.sh, with
 # DATA set): the steps every shipped model goes through once its bags exist.
-#   train_and_evaluate NAME TRAIN_BAG TEST_BAG SIGMA_BAG EPOCHS ARCH [DSS TRAIN OPTION...]
+#   train_and_evaluate NAME TRAIN_BAG TEST_BAG SIGMA_BAG EPOCHS ARCH CORRECTION [DSS TRAIN OPTION...]
 # Trains models/NAME.dssmodel unless it exists (resuming DATA/NAME.ckpt when
-# present), calibrates its sigma on the sigma bag, evaluates it on the test
+# present), fits its angle correction (calibrate-sigma --correction-degree
+# CORRECTION: a maximum degree, or keep) and its sigma on the sigma bag, evaluates it on the test
 # bag, then calibrates the centroid baseline on the first 1000 training images
 # (models/NAME.calib.yaml) and evaluates it on the same test bag. Results:
 # DATA/NAME.*.json and .csv.
 train_and_evaluate() {
-  local name="$1" train="$2" test="$3" sigma="$4" epochs="$5" arch="$6"
-  shift 6
+  local name="$1" train="$2" test="$3" sigma="$4" epochs="$5" arch="$6" correction="$7"
+  shift 7
   local model="$ROOT/models/$name.dssmodel" calib="$ROOT/models/$name.calib.yaml" ckpt="$DATA/$name.ckpt"
   if [ ! -f "$model" ]; then
     local resume=()
     [ -f "$ckpt" ] && resume=(--resume "$ckpt")
     "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" "$@" \
       --lr 5e-4 --seed 1 "${resume[@]}" | tee "$DATA/$name.train.json"
-    # sigma (level, or a constant per axis) and the input envelope from fresh images
-    "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" | tee "$DATA/$name.sigma.json"
+    # smooth angle correction, sigma (level, or a constant per axis) and the input envelope from fresh images
+    "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" --correction-degree "$correction" \
+      | tee "$DATA/$name.sigma.json"
   fi
   "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$name.sscnn.csv" | tee "$DATA/$name.sscnn.json"
   "$DSS" calibrate --data "$train" --max-images 1000 --out "$calib" > "$DATA/$name.calibrate.json"

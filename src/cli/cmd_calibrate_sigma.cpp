@@ -1,14 +1,17 @@
-// dss calibrate-sigma: refits the level of a model's predicted uncertainty on
-// labelled held-out images (src/train/sigma_calibration), records their input
-// envelope (model/input_envelope) and writes the model.
+// dss calibrate-sigma: on labelled held-out images, optionally refits the
+// model's smooth angle correction (src/train/bias_calibration), then refits the
+// level of its predicted uncertainty (src/train/sigma_calibration), records
+// their input envelope (model/input_envelope) and writes the model.
 #include <cmath>
 #include <iostream>
+#include <optional>
 
 #include "commands.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sparse/threads.h"
+#include "digital_sun_sensor/train/bias_calibration.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
 #include "progress.h"
 
@@ -17,7 +20,9 @@ namespace dss::cli {
 int runCalibrateSigma(int argc, char** argv) {
   Args args(
       "dss calibrate-sigma",
-      "Scales a model's predicted sigma per axis so that 68.27 % of the errors on the given labelled images lie "
+      "Optionally refits a smooth correction of the model's angles (Legendre polynomials of the estimated angles, "
+      "the degree chosen by two-fold cross-validation on these images), then scales its predicted sigma per axis so "
+      "that 68.27 % of the errors on the given labelled images lie "
       "within 1 sigma (use images the model was not trained on; where the predicted sigma's shape is worse than none, "
       "a constant sigma per axis replaces it), and records the range of lit pixels of those "
       "images as the model's input envelope (calibration_node flags images outside it out_of_distribution); "
@@ -28,6 +33,10 @@ int runCalibrateSigma(int argc, char** argv) {
           {"data", "BAG", "labelled dataset bag(s) of the model's sensor", "", true, true},
           {"out", "MODEL", "model file to write (may be --model)", "", true, false},
           {"max-images", "N", "use at most N images", "5000", false, false},
+          {"correction-degree", "D",
+           "angle correction: 'keep' the model's, 'none', or refit one of degree at most D (0.." +
+               std::to_string(AngleCorrection::kMaxDegree) + ")",
+           "keep", false, false},
       });
   if (!args.parse(argc, argv, 2)) return 0;
   sparse::configureThreads(1, 2);
@@ -45,6 +54,19 @@ int runCalibrateSigma(int argc, char** argv) {
   // The envelope recorded in training (which may have included anomalies)
   // widened to these images: it covers all the model has been fitted to.
   const InputEnvelope envelope = covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts()));
+  const std::string correction = args.get("correction-degree");
+  std::optional<BiasCalibration> bias;
+  if (correction != "keep") {
+    const int max_degree =
+        correction == "none" ? AngleCorrection::kNone : static_cast<int>(args.getInt("correction-degree"));
+    if (max_degree < AngleCorrection::kNone || max_degree > AngleCorrection::kMaxDegree)
+      throw UsageError("dss calibrate-sigma: --correction-degree must be keep, none or 0.." +
+                       std::to_string(AngleCorrection::kMaxDegree) + ", not " + correction);
+    bias = calibrateBias(model, data.samples, max_images ? max_images : data.samples.size(), max_degree);
+    std::cerr << "angle correction: degree " << bias->degree << " (cross-validated RMS "
+              << bias->cross_validated_rms_deg[static_cast<std::size_t>(bias->degree + 1)] << " deg, none "
+              << bias->cross_validated_rms_deg.front() << " deg; " << bias->outliers << " outliers left out)\n";
+  }
   const SigmaCalibration c = calibrateSigma(model, data.samples, max_images ? max_images : data.samples.size());
   recordInputEnvelope(model.meta, envelope);
   saveModel(model, args.get("out"));
@@ -59,7 +81,17 @@ int runCalibrateSigma(int argc, char** argv) {
             << ", \"sigma_mode\": \"" << (c.constant ? "constant" : "head")
             << "\", \"constant_sigma_alpha_deg\": " << c.constant_sigma_alpha_rad * 180.0 / M_PI
             << ", \"constant_sigma_beta_deg\": " << c.constant_sigma_beta_rad * 180.0 / M_PI
-            << ", \"scale_alpha\": " << c.scale_alpha << ", \"scale_beta\": " << c.scale_beta
+            << ", \"correction_degree\": " << model.meta.angle_correction.degree;
+  if (bias) {
+    std::cout << ", \"correction_cv_rms_deg\": [";
+    for (std::size_t k = 0; k < bias->cross_validated_rms_deg.size(); ++k)
+      std::cout << (k ? ", " : "") << bias->cross_validated_rms_deg[k];
+    std::cout << "], \"correction_rms_alpha_before_deg\": " << bias->rms_alpha_before_deg
+              << ", \"correction_rms_beta_before_deg\": " << bias->rms_beta_before_deg
+              << ", \"correction_rms_alpha_after_deg\": " << bias->rms_alpha_after_deg
+              << ", \"correction_rms_beta_after_deg\": " << bias->rms_beta_after_deg;
+  }
+  std::cout << ", \"scale_alpha\": " << c.scale_alpha << ", \"scale_beta\": " << c.scale_beta
             << coverage("before_alpha", c.alpha_before) << coverage("before_beta", c.beta_before)
             << coverage("after_alpha", c.alpha_after) << coverage("after_beta", c.beta_after) << "}" << std::endl;
   return 0;

@@ -180,6 +180,13 @@ std::string metadataToYaml(const ModelMetadata& m) {
   e << YAML::Key << "max_sites" << YAML::Value << m.input.max_sites;
   e << YAML::EndMap;
   e << YAML::Key << "angle_scale_rad" << YAML::Value << m.angle_scale_rad;
+  if (m.angle_correction.active()) {
+    e << YAML::Key << "angle_correction" << YAML::Value << YAML::BeginMap;
+    e << YAML::Key << "degree" << YAML::Value << m.angle_correction.degree;
+    e << YAML::Key << "alpha" << YAML::Value << YAML::Flow << m.angle_correction.alpha;
+    e << YAML::Key << "beta" << YAML::Value << YAML::Flow << m.angle_correction.beta;
+    e << YAML::EndMap;
+  }
   e << YAML::Key << "sensor_name" << YAML::Value << m.sensor_name;
   e << YAML::Key << "training" << YAML::Value << mapFromText(m.training_yaml, "training summary");
   e << YAML::Key << "metrics" << YAML::Value << mapFromText(m.metrics_yaml, "metrics");
@@ -260,6 +267,17 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     throw ModelError(origin + ": metadata 'input' has a non-positive size");
   m.angle_scale_rad = get<double>(root, "angle_scale_rad", origin, "");
   if (!(m.angle_scale_rad > 0.0)) throw ModelError(origin + ": metadata 'angle_scale_rad' must be positive");
+  if (const YAML::Node c = root["angle_correction"]) {  // absent: none
+    if (!c.IsMap()) throw ModelError(origin + ": metadata key 'angle_correction' is not a map");
+    m.angle_correction.degree = get<int>(c, "degree", origin, "angle_correction.");
+    m.angle_correction.alpha = get<std::vector<double>>(c, "alpha", origin, "angle_correction.");
+    m.angle_correction.beta = get<std::vector<double>>(c, "beta", origin, "angle_correction.");
+    try {
+      m.angle_correction.validate();
+    } catch (const std::invalid_argument& e) {
+      throw ModelError(origin + ": metadata key 'angle_correction': " + e.what());
+    }
+  }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
   m.sensor_yaml = get<std::string>(root, "sensor", origin, "");
   m.training_yaml = YAML::Dump(root["training"] ? root["training"] : YAML::Node(YAML::NodeType::Map));

@@ -228,8 +228,9 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
   for (std::size_t b = 0; b < result.size(); ++b) {
     Prediction& p = result[b];
     const auto i = static_cast<std::int64_t>(b);
-    p.alpha_rad = a[i][0] * s;
-    p.beta_rad = a[i][1] * s;
+    const auto bias = meta.angle_correction.bias(a[i][0], a[i][1]);
+    p.alpha_rad = (a[i][0] - bias[0]) * s;
+    p.beta_rad = (a[i][1] - bias[1]) * s;
     p.alpha_variance_rad2 = std::exp(v[i][0]) * s * s;
     p.beta_variance_rad2 = std::exp(v[i][1]) * s * s;
     for (std::int64_t k = 0; k < probs.size(1); ++k)

@@ -6,28 +6,16 @@
 #include <stdexcept>
 
 #include "digital_sun_sensor/model/model.h"
-#include "digital_sun_sensor/model/sparse_input.h"
+#include "held_out.h"
 
 namespace dss {
 
 SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples) {
-  if (data.size() == 0 || max_samples == 0) throw std::invalid_argument("sigma calibration: no samples");
-  const InputSpec& a = data.spec();
-  const InputSpec& b = model.meta.input;
-  if (a.width_px != b.width_px || a.height_px != b.height_px || a.max_code != b.max_code ||
-      a.threshold_dn != b.threshold_dn || a.black_level_dn != b.black_level_dn)
-    throw std::invalid_argument("sigma calibration: the samples were not encoded with the model's input spec");
-
-  std::vector<const SparseSample*> picked;
-  const std::size_t n = std::min(data.size(), max_samples);
-  for (std::size_t i = 0; i < n; ++i) picked.push_back(&data.samples()[i * data.size() / n]);
-  const std::vector<Prediction> predictions = model.predictSamples(picked);
-
   std::vector<ErrorAndSigma> za, zb;
-  for (std::size_t k = 0; k < picked.size(); ++k) {
-    if (predictions[k].active_sites == 0) continue;  // answered "no_sun", not an estimate
-    za.push_back({predictions[k].alpha_rad - picked[k]->alpha_rad, std::sqrt(predictions[k].alpha_variance_rad2)});
-    zb.push_back({predictions[k].beta_rad - picked[k]->beta_rad, std::sqrt(predictions[k].beta_variance_rad2)});
+  for (const HeldOutPrediction& h : predictHeldOut(model, data, max_samples, "sigma calibration")) {
+    const Prediction& p = h.prediction;
+    za.push_back({p.alpha_rad - h.sample->alpha_rad, std::sqrt(p.alpha_variance_rad2)});
+    zb.push_back({p.beta_rad - h.sample->beta_rad, std::sqrt(p.beta_variance_rad2)});
   }
   SigmaCalibration c;
   c.samples = za.size();

@@ -173,6 +173,8 @@ struct Trainer::Impl {
     sparse::configureThreads(options.aten_threads, options.blas_threads);
     if (!options.init_model.empty()) {
       model = loadModel(options.init_model, &sensor);  // ModelError names the file and the mismatch
+      // Its angle correction fitted that network's bias, which training changes.
+      model.meta.angle_correction = AngleCorrection{};
       if (options.arch.empty()) options.arch = model.meta.arch.name;
       if (model.meta.arch.name != options.arch)
         throw std::invalid_argument("training option init_model: " + options.init_model + " is " +

@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "digital_sun_sensor/model/angle_correction.h"
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/model/input_spec.h"
 
@@ -19,7 +20,8 @@ class ModelError : public std::runtime_error {
 struct ModelMetadata {
   ArchSpec arch;
   InputSpec input;
-  double angle_scale_rad = 0.0;  // network angle output 1.0 = this many radians
+  double angle_scale_rad = 0.0;      // network angle output 1.0 = this many radians
+  AngleCorrection angle_correction;  // fitted after training (none until then)
   std::string sensor_name;
   std::string sensor_yaml;    // canonical config (toYaml) the model was made for
   std::string training_yaml;  // YAML map: data, schedule, wall time ("{}" untrained)

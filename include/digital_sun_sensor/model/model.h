@@ -37,6 +37,7 @@ struct Model {
   // The same for samples already reduced to their sites (training data), in
   // batches of 64; no autograd, and the caller chooses train or eval mode.
   std::vector<Prediction> predictSamples(const std::vector<const SparseSample*>& samples) const;
+  // Network outputs to angles (the metadata's angle correction subtracted), variances and classes.
   std::vector<Prediction> decode(const SscnnOutput& out, const sparse::SiteSet& sites) const;
   // Multiplies the predicted standard deviations by these factors (through
   // the variance head's bias; train/sigma_calibration fits them).

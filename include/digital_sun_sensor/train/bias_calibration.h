@@ -1,0 +1,36 @@
+// Post-hoc fit of a model's smooth angle bias (model/angle_correction) on
+// labelled held-out images. The degree is chosen by two-fold cross-validation
+// (even / odd samples), so the correction is only as rich as held-out images
+// confirm, and none when none helps. Images whose error is far beyond the
+// typical (whole-pitch misresolutions and the like) are left out of the fit: a
+// smooth correction must not chase them. Torch-free header.
+#pragma once
+
+#include <cstddef>
+#include <vector>
+
+#include "digital_sun_sensor/train/training_set.h"
+
+namespace dss {
+
+struct Model;
+
+struct BiasCalibration {
+  std::size_t samples = 0;   // fitted (estimates within the outlier bound)
+  std::size_t outliers = 0;  // left out
+  int degree = -1;           // chosen (AngleCorrection::kNone: none)
+  // Held-out RMS error (both axes) per candidate degree, from none (index 0)
+  // to the maximum.
+  std::vector<double> cross_validated_rms_deg;
+  double rms_alpha_before_deg = 0.0, rms_beta_before_deg = 0.0;  // on the fitted samples
+  double rms_alpha_after_deg = 0.0, rms_beta_after_deg = 0.0;
+};
+
+// Replaces the model's angle correction with one of degree at most
+// `max_degree` (AngleCorrection::kNone..kMaxDegree) fitted on at most
+// `max_samples` evenly spaced samples of `data` (encoded with the model's input
+// spec) and records it in the model's metrics. Throws std::invalid_argument
+// for a bad degree, empty data or another input spec.
+BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree);
+
+}  // namespace dss

@@ -1,0 +1,129 @@
+#include "digital_sun_sensor/train/bias_calibration.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include "digital_sun_sensor/model/model.h"
+#include "held_out.h"
+
+namespace dss {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+// Errors beyond this many times the median absolute error are not smooth bias.
+constexpr double kOutlierFactor = 20.0;
+// A richer correction must lower the cross-validated RMS by more than this
+// fraction to be chosen over a simpler one (parsimony: noise in the choice).
+constexpr double kRequiredGain = 0.01;
+
+// Least-squares coefficients [terms, 2] of the first `terms` basis columns of
+// rows `rows` of `basis` against the errors.
+Eigen::MatrixXd fit(const Eigen::MatrixXd& basis, const Eigen::MatrixXd& errors, const std::vector<Eigen::Index>& rows,
+                    Eigen::Index terms) {
+  Eigen::MatrixXd a(rows.size(), terms), b(rows.size(), 2);
+  for (std::size_t r = 0; r < rows.size(); ++r) {
+    a.row(r) = basis.row(rows[r]).head(terms);
+    b.row(r) = errors.row(rows[r]);
+  }
+  return a.colPivHouseholderQr().solve(b);
+}
+
+}  // namespace
+
+BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree) {
+  if (max_degree < AngleCorrection::kNone || max_degree > AngleCorrection::kMaxDegree)
+    throw std::invalid_argument("bias calibration: maximum degree " + std::to_string(max_degree) + " is outside " +
+                                std::to_string(AngleCorrection::kNone) + ".." +
+                                std::to_string(AngleCorrection::kMaxDegree));
+  model.meta.angle_correction = AngleCorrection{};  // the network's own bias is what is fitted
+  const std::vector<HeldOutPrediction> held_out = predictHeldOut(model, data, max_samples, "bias calibration");
+  if (held_out.empty()) throw std::invalid_argument("bias calibration: the model found no sun in any sample");
+
+  // Normalized estimates and errors; the outlier bound from the median error.
+  const double scale = model.meta.angle_scale_rad;
+  std::vector<double> magnitudes;
+  for (const auto& h : held_out)
+    magnitudes.push_back(std::max(std::abs(h.prediction.alpha_rad - h.sample->alpha_rad),
+                                  std::abs(h.prediction.beta_rad - h.sample->beta_rad)));
+  std::vector<double> sorted = magnitudes;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const double bound = kOutlierFactor * sorted[sorted.size() / 2];
+  std::vector<const HeldOutPrediction*> kept;
+  for (std::size_t k = 0; k < held_out.size(); ++k)
+    if (magnitudes[k] <= bound) kept.push_back(&held_out[k]);
+
+  BiasCalibration c;
+  c.samples = kept.size();
+  c.outliers = held_out.size() - kept.size();
+  const int top = std::max(max_degree, 0);
+  const auto n = static_cast<Eigen::Index>(kept.size());
+  Eigen::MatrixXd basis(n, static_cast<Eigen::Index>(AngleCorrection::termCount(top)));
+  Eigen::MatrixXd errors(n, 2);
+  for (Eigen::Index r = 0; r < n; ++r) {
+    const Prediction& p = kept[r]->prediction;
+    const auto t = AngleCorrection::terms(top, p.alpha_rad / scale, p.beta_rad / scale);
+    basis.row(r) = Eigen::Map<const Eigen::RowVectorXd>(t.data(), static_cast<Eigen::Index>(t.size()));
+    errors(r, 0) = (p.alpha_rad - kept[r]->sample->alpha_rad) / scale;
+    errors(r, 1) = (p.beta_rad - kept[r]->sample->beta_rad) / scale;
+  }
+  auto rmsDeg = [&](const Eigen::MatrixXd& e) {
+    return std::sqrt(e.squaredNorm() / std::max<double>(1.0, static_cast<double>(e.size()))) * scale * kRadToDeg;
+  };
+
+  // Two folds, even and odd samples: each fitted on one and scored on the other.
+  std::vector<Eigen::Index> folds[2];
+  for (Eigen::Index r = 0; r < n; ++r) folds[r % 2].push_back(r);
+  c.cross_validated_rms_deg.push_back(rmsDeg(errors));
+  c.degree = AngleCorrection::kNone;
+  double best = c.cross_validated_rms_deg.front();
+  for (int degree = 0; degree <= max_degree; ++degree) {
+    const auto terms = static_cast<Eigen::Index>(AngleCorrection::termCount(degree));
+    // Too few samples to fit this many terms: held-out errors would say nothing.
+    if (static_cast<Eigen::Index>(folds[1].size()) < 3 * terms) break;
+    double sum = 0.0;
+    for (int f = 0; f < 2; ++f) {
+      const Eigen::MatrixXd coefficients = fit(basis, errors, folds[f], terms);
+      for (const Eigen::Index r : folds[1 - f])
+        sum += (errors.row(r) - basis.row(r).head(terms) * coefficients).squaredNorm();
+    }
+    const double rms = std::sqrt(sum / std::max<double>(1.0, 2.0 * static_cast<double>(n))) * scale * kRadToDeg;
+    c.cross_validated_rms_deg.push_back(rms);
+    if (rms < best * (1.0 - kRequiredGain)) {
+      best = rms;
+      c.degree = degree;
+    }
+  }
+
+  AngleCorrection& correction = model.meta.angle_correction;
+  Eigen::MatrixXd residual = errors;
+  if (c.degree != AngleCorrection::kNone) {
+    std::vector<Eigen::Index> all(static_cast<std::size_t>(n));
+    for (Eigen::Index r = 0; r < n; ++r) all[r] = r;
+    const auto terms = static_cast<Eigen::Index>(AngleCorrection::termCount(c.degree));
+    const Eigen::MatrixXd coefficients = fit(basis, errors, all, terms);
+    correction.degree = c.degree;
+    correction.alpha.assign(coefficients.col(0).data(), coefficients.col(0).data() + terms);
+    correction.beta.assign(coefficients.col(1).data(), coefficients.col(1).data() + terms);
+    correction.validate();
+    residual -= basis.leftCols(terms) * coefficients;
+  }
+  c.rms_alpha_before_deg = rmsDeg(errors.col(0));
+  c.rms_beta_before_deg = rmsDeg(errors.col(1));
+  c.rms_alpha_after_deg = rmsDeg(residual.col(0));
+  c.rms_beta_after_deg = rmsDeg(residual.col(1));
+
+  YAML::Node metrics = YAML::Load(model.meta.metrics_yaml);
+  metrics["angle_correction_degree"] = c.degree;
+  metrics["angle_correction_samples"] = c.samples;
+  metrics["angle_correction_cv_rms_deg_none"] = c.cross_validated_rms_deg.front();
+  metrics["angle_correction_cv_rms_deg"] = c.cross_validated_rms_deg[static_cast<std::size_t>(c.degree + 1)];
+  model.meta.metrics_yaml = YAML::Dump(metrics);
+  return c;
+}
+
+}  // namespace dss
