@@ -19,7 +19,7 @@ mkdir -p "$DATA" "$ROOT/models"
 recipe() {
   case "$1" in
     thesis_sa) echo "60000 501 502 45 resnet18_w32 503 learned keep" ;;
-    thesis_ma) echo "60000 511 512 24 resnet10_w16 513 value 16" ;;
+    thesis_ma) echo "60000 511 512 22 resnet10_w16 513 learned keep" ;;
     wide_ma) echo "24000 521 522 7 resnet10_w16 523 value 16" ;;
     thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
