@@ -20,7 +20,7 @@ struct BiasCalibration {
   std::size_t outliers = 0;  // left out
   int degree = -1;           // chosen (AngleCorrection::kNone: none)
   // Held-out RMS error (both axes) per candidate degree, from none (index 0)
-  // to the maximum.
+  // up to the maximum, or the largest the samples support (3 per term and fold).
   std::vector<double> cross_validated_rms_deg;
   double rms_alpha_before_deg = 0.0, rms_beta_before_deg = 0.0;  // on the fitted samples
   double rms_alpha_after_deg = 0.0, rms_beta_after_deg = 0.0;
