@@ -115,6 +115,14 @@ TEST(Generate, BadInputGetsClearErrors) {
   EXPECT_NE(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   EXPECT_FALSE(exists(out));
   EXPECT_FALSE(exists(out + ".partial"));
+  // calibrate-sigma refuses a bad correction degree before it reads any bag.
+  for (const std::string degree : {"25", "cubic"}) {
+    r = run("calibrate-sigma --model models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --out " + out +
+            " --correction-degree " + degree);
+    EXPECT_EQ(r.code, 2) << r.output;
+    EXPECT_NE(r.output.find("--correction-degree"), std::string::npos) << r.output;
+    EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
+  }
   r = run("--help");
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.output.find("generate"), std::string::npos);
@@ -139,9 +147,13 @@ std::string lastLine(const std::string& output, const std::string& prefix) {
 // sensor (same seed, later offset): one JSON line with every DESIGN key.
 TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
   const std::string cal = tmp("cal.bag"), test = tmp("test.bag"), calib = tmp("calib.yaml"), csv = tmp("eval.csv");
-  ASSERT_EQ(run("generate --sensor " + kSensor + " --count 80 --seed 5 --anomalies as_built=1 --set optics.psf_node_step_deg=3 --out " + cal).code, 0);
+  ASSERT_EQ(run("generate --sensor " + kSensor +
+                " --count 80 --seed 5 --anomalies as_built=1 --set optics.psf_node_step_deg=3 --out " + cal)
+                .code,
+            0);
   ASSERT_EQ(
-      run("generate --sensor " + kSensor + " --count 30 --seed 5 --offset 80 --anomalies as_built=1 --set optics.psf_node_step_deg=3 --out " + test)
+      run("generate --sensor " + kSensor +
+          " --count 30 --seed 5 --offset 80 --anomalies as_built=1 --set optics.psf_node_step_deg=3 --out " + test)
           .code,
       0);
   auto r = run("calibrate --data " + cal + " --out " + calib);
@@ -171,7 +183,9 @@ TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
 // finishes; bad options and mismatched checkpoints are refused.
 TEST(Train, TrainThenEvalAndResume) {
   const std::string bag = tmp("train.bag"), model = tmp("model.dssm"), ckpt = tmp("model.ckpt");
-  ASSERT_EQ(run("generate --sensor " + kSensor + " --count 96 --seed 6 --set optics.psf_node_step_deg=3 --out " + bag).code, 0);
+  ASSERT_EQ(
+      run("generate --sensor " + kSensor + " --count 96 --seed 6 --set optics.psf_node_step_deg=3 --out " + bag).code,
+      0);
   const std::string common = "train --data " + bag + " --out " + model + " --arch resnet10_w16 --batch 16 --epochs 2";
   auto r = run(common + " --checkpoint " + ckpt + " --max-minutes 0.00001");
   EXPECT_EQ(r.code, 3) << r.output;
@@ -206,7 +220,9 @@ TEST(Baseline, BadBagsGetClearErrors) {
                     other = tmp("other.bag"), small = tmp("small.bag"), calib = tmp("bad_calib.yaml");
   { std::ofstream touch(empty); }
   { std::ofstream(junk) << std::string(5000, 'x'); }
-  ASSERT_EQ(run("generate --sensor " + kSensor + " --count 30 --seed 3 --set optics.psf_node_step_deg=3 --out " + good).code, 0);
+  ASSERT_EQ(
+      run("generate --sensor " + kSensor + " --count 30 --seed 3 --set optics.psf_node_step_deg=3 --out " + good).code,
+      0);
   const std::string bytes = slurp(good);
   { std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() / 2); }
   {
@@ -216,7 +232,9 @@ TEST(Baseline, BadBagsGetClearErrors) {
     bag.write("/chatter", ros::Time(1, 0), s);
   }
   ASSERT_EQ(run("generate --sensor " + kSensor +
-                " --count 3 --seed 3 --set optics.psf_node_step_deg=3 --set detector.width_px=256 --set detector.height_px=256 --out " + small)
+                " --count 3 --seed 3 --set optics.psf_node_step_deg=3 --set detector.width_px=256 --set "
+                "detector.height_px=256 --out " +
+                small)
                 .code,
             0);
   ASSERT_EQ(run("calibrate --data " + good + " --out " + calib).code, 0);

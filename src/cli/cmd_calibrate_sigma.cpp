@@ -39,6 +39,15 @@ int runCalibrateSigma(int argc, char** argv) {
            "keep", false, false},
       });
   if (!args.parse(argc, argv, 2)) return 0;
+  // Checked before the bags are read, which can take minutes.
+  const std::string correction = args.get("correction-degree");
+  std::optional<int> max_degree;  // none: keep the model's correction
+  if (correction != "keep") {
+    max_degree = correction == "none" ? AngleCorrection::kNone : static_cast<int>(args.getInt("correction-degree"));
+    if (*max_degree < AngleCorrection::kNone || *max_degree > AngleCorrection::kMaxDegree)
+      throw UsageError("dss calibrate-sigma: --correction-degree must be keep, none or 0.." +
+                       std::to_string(AngleCorrection::kMaxDegree) + ", not " + correction);
+  }
   sparse::configureThreads(1, 2);
   Model model = loadModel(args.get("model"));
   const SensorConfig sensor = parseSensorConfig(model.meta.sensor_yaml, args.get("model") + " (sensor)");
@@ -54,15 +63,9 @@ int runCalibrateSigma(int argc, char** argv) {
   // The envelope recorded in training (which may have included anomalies)
   // widened to these images: it covers all the model has been fitted to.
   const InputEnvelope envelope = covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts()));
-  const std::string correction = args.get("correction-degree");
   std::optional<BiasCalibration> bias;
-  if (correction != "keep") {
-    const int max_degree =
-        correction == "none" ? AngleCorrection::kNone : static_cast<int>(args.getInt("correction-degree"));
-    if (max_degree < AngleCorrection::kNone || max_degree > AngleCorrection::kMaxDegree)
-      throw UsageError("dss calibrate-sigma: --correction-degree must be keep, none or 0.." +
-                       std::to_string(AngleCorrection::kMaxDegree) + ", not " + correction);
-    bias = calibrateBias(model, data.samples, max_images ? max_images : data.samples.size(), max_degree);
+  if (max_degree) {
+    bias = calibrateBias(model, data.samples, max_images ? max_images : data.samples.size(), *max_degree);
     std::cerr << "angle correction: degree " << bias->degree << " (cross-validated RMS "
               << bias->cross_validated_rms_deg[static_cast<std::size_t>(bias->degree + 1)] << " deg, none "
               << bias->cross_validated_rms_deg.front() << " deg; " << bias->outliers << " outliers left out)\n";
