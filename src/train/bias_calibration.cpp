@@ -22,7 +22,7 @@ constexpr double kOutlierFactor = 20.0;
 constexpr double kRequiredGain = 0.01;
 
 // Least-squares coefficients [terms, 2] of the first `terms` basis columns of
-// rows `rows` of `basis` against the errors.
+// rows `rows` of `basis` against the errors (one cross-validation fold).
 Eigen::MatrixXd fit(const Eigen::MatrixXd& basis, const Eigen::MatrixXd& errors, const std::vector<Eigen::Index>& rows,
                     Eigen::Index terms) {
   Eigen::MatrixXd a(rows.size(), terms), b(rows.size(), 2);
@@ -102,10 +102,8 @@ BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t
   AngleCorrection& correction = model.meta.angle_correction;
   Eigen::MatrixXd residual = errors;
   if (c.degree != AngleCorrection::kNone) {
-    std::vector<Eigen::Index> all(static_cast<std::size_t>(n));
-    for (Eigen::Index r = 0; r < n; ++r) all[r] = r;
     const auto terms = static_cast<Eigen::Index>(AngleCorrection::termCount(c.degree));
-    const Eigen::MatrixXd coefficients = fit(basis, errors, all, terms);
+    const Eigen::MatrixXd coefficients = basis.leftCols(terms).colPivHouseholderQr().solve(errors);
     correction.degree = c.degree;
     correction.alpha.assign(coefficients.col(0).data(), coefficients.col(0).data() + terms);
     correction.beta.assign(coefficients.col(1).data(), coefficients.col(1).data() + terms);
