@@ -123,6 +123,11 @@ TEST(Generate, BadInputGetsClearErrors) {
     EXPECT_NE(r.output.find("--correction-degree"), std::string::npos) << r.output;
     EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   }
+  // So does eval a bad spike threshold for its screen.
+  r = run("eval --estimator sscnn:models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --screen --spike-sigmas -1");
+  EXPECT_EQ(r.code, 2) << r.output;
+  EXPECT_NE(r.output.find("--spike-sigmas"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   r = run("--help");
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.output.find("generate"), std::string::npos);

@@ -9,6 +9,7 @@
 #include "digital_sun_sensor/baseline/centroid_estimator.h"
 #include "digital_sun_sensor/baseline/gaussian_fit.h"
 #include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/spike_filter.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
@@ -236,6 +237,12 @@ TEST(CalibrationFile, RoundTripAndClearErrors) {
   expectError(replaced("centroid_sigma_px", "centroid_sigma"), "centroid_sigma_px");
   expectError(replaced("degree: 2", "degree: 3"), "needs 10 coefficients");
   expectError(replaced("  apertures:\n    - {", "  apertures:\n    - {x_um: 1, y_um: 2}\n    - {"), "must list 9");
+  expectError(replaced("spike_sigmas: 4", "spike_sigmas: -4"), "spike_sigmas must be >= 0");
+  // Files from before the hot-pixel repair have no spike_sigmas: the default.
+  const Calibration old = parseCalibration(replaced("spike_sigmas: 4", "unused_key: 4"), "old.yaml");
+  EXPECT_EQ(old.extraction.spike_sigmas, kDefaultSpikeSigmas);
+  EXPECT_EQ(old.extraction.spike_margin_dn, c.extraction.spike_margin_dn);
+  EXPECT_TRUE(parseCalibration(replaced("spike_sigmas: 4", "spike_sigmas: 0"), "off.yaml").extraction.spike_margin_dn.empty());
   EXPECT_THROW(loadCalibration("/nonexistent/calib.yaml"), CalibrationError);
 }
 

@@ -9,12 +9,16 @@
 #include <random>
 
 #include "digital_sun_sensor/baseline/calibration.h"
+#include "digital_sun_sensor/baseline/spot_extraction.h"
+#include "digital_sun_sensor/common/spike_filter.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/eval/uncertainty.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
 namespace {
@@ -70,6 +74,71 @@ TEST(Screen, HotPixelsAreRemovedAndTheSpotKept) {
   EXPECT_EQ(raw_cleaned.at<std::uint16_t>(31, 31), 900);
 }
 
+// Hot pixels inside a real spot (wide_ma: 20 % on-chip threshold, sharp
+// diffraction peaks) are found and repaired; the light itself is not touched,
+// and the baseline's centroids return to those of the clean image.
+TEST(SpikeFilter, HotPixelsInARenderedSpotAreRepairedAndItsLightIsNot) {
+  const SensorConfig sensor = shipped("wide_ma");
+  const std::vector<int> margins = spikeMargins(sensor, kDefaultSpikeSigmas);
+  ASSERT_EQ(margins.size(), 256u);
+  for (std::size_t m = 1; m < margins.size(); ++m) EXPECT_GE(margins[m], margins[m - 1]);
+  EXPECT_TRUE(spikeMargins(sensor, 0.0).empty());
+  EXPECT_THROW(spikeMargins(sensor, NAN), std::invalid_argument);
+
+  const Renderer renderer(SensorInstance::draw(sensor, 5));
+  SpotExtractionConfig with = SpotExtractionConfig::forSensor(sensor), without = with;
+  without.spike_margin_dn.clear();
+  std::mt19937 rng(11);
+  int natural = 0;
+  for (int i = 0; i < 4; ++i) {
+    const cv::Mat clean = renderer.render(sunVectorFromAngles((12.0 - 9.0 * i) * kRad, (7.0 * i - 20.0) * kRad),
+                                          300 + i, nullptr, RenderOptions{});
+    int repaired = 0;
+    repairSpikes(clean, margins, &repaired);
+    natural += repaired;
+    // Hot pixels of +120 DN on lit pixels of the spots, apart from each other.
+    cv::Mat hot = clean.clone();
+    std::vector<cv::Point> lit;
+    cv::findNonZero(clean > 40, lit);
+    ASSERT_GT(lit.size(), 200u);
+    std::vector<cv::Point> placed;
+    std::uniform_int_distribution<std::size_t> pick(0, lit.size() - 1);
+    while (placed.size() < 6) {
+      const cv::Point p = lit[pick(rng)];
+      if (p.x < 1 || p.y < 1 || p.x >= hot.cols - 1 || p.y >= hot.rows - 1) continue;
+      if (std::any_of(placed.begin(), placed.end(), [&](const cv::Point& q) { return cv::norm(p - q) < 3.0; })) continue;
+      hot.at<std::uint8_t>(p) = cv::saturate_cast<std::uint8_t>(hot.at<std::uint8_t>(p) + 120);
+      placed.push_back(p);
+    }
+    const cv::Mat fixed = repairSpikes(hot, margins, &repaired);
+    EXPECT_GE(repaired, 6);
+    for (const cv::Point& p : placed) {
+      double lo = 255, hi = 0;
+      cv::minMaxLoc(clean(cv::Rect(p.x - 1, p.y - 1, 3, 3)), &lo, &hi);
+      EXPECT_GE(fixed.at<std::uint8_t>(p), lo) << p;
+      EXPECT_LE(fixed.at<std::uint8_t>(p), hi) << p;
+    }
+    // The baseline's spots: back on the clean image's with the repair, off without it.
+    const auto reference = extractSpots(clean, with), repaired_spots = extractSpots(hot, with),
+               unrepaired = extractSpots(hot, without);
+    ASSERT_EQ(repaired_spots.size(), reference.size());
+    ASSERT_EQ(unrepaired.size(), reference.size());
+    double worst_repaired = 0.0, worst_unrepaired = 0.0;
+    for (const auto& r : reference) {
+      auto nearest = [&](const std::vector<DetectedSpot>& spots) {
+        double best = 1e9;
+        for (const auto& s : spots) best = std::min(best, std::hypot(s.x_px - r.x_px, s.y_px - r.y_px));
+        return best;
+      };
+      worst_repaired = std::max(worst_repaired, nearest(repaired_spots));
+      worst_unrepaired = std::max(worst_unrepaired, nearest(unrepaired));
+    }
+    EXPECT_LT(worst_repaired, 0.015) << "image " << i;
+    EXPECT_GT(worst_unrepaired, 0.03) << "image " << i;
+  }
+  EXPECT_LE(natural, 2) << "pixels of real light taken for spikes (1 in these 4 images)";
+}
+
 TEST(Screen, EstimatesBeyondTheEnvelopeAreRejected) {
   const SensorConfig sensor = shipped("thesis_sa");  // FOV +-4.54 deg
   ScreenOptions options;
@@ -93,6 +162,9 @@ TEST(Screen, EstimatesBeyondTheEnvelopeAreRejected) {
   EXPECT_EQ(nan.status, "out_of_distribution");
 
   options.max_sigma_deg = -1.0;
+  EXPECT_THROW(options.validate(), std::invalid_argument);
+  options = ScreenOptions{};
+  options.spike_sigmas = -1.0;
   EXPECT_THROW(options.validate(), std::invalid_argument);
 }
 

@@ -6,6 +6,7 @@
 
 #include "digital_sun_sensor/baseline/calibration.h"
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/spike_filter.h"
 
 namespace dss {
 namespace {
@@ -53,7 +54,8 @@ std::string toYaml(const Calibration& c) {
   out << YAML::Key << "min_area_px" << YAML::Value << e.min_area_px;
   out << YAML::Key << "min_area_fraction" << YAML::Value << e.min_area_fraction;
   out << YAML::Key << "read_noise_dn" << YAML::Value << e.read_noise_dn;
-  out << YAML::Key << "electrons_per_dn" << YAML::Value << e.electrons_per_dn << YAML::EndMap;
+  out << YAML::Key << "electrons_per_dn" << YAML::Value << e.electrons_per_dn;
+  out << YAML::Key << "spike_sigmas" << YAML::Value << e.spike_sigmas << YAML::EndMap;
   const auto& g = c.geometry;
   out << YAML::Key << "geometry" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "height_um" << YAML::Value << g.height_um;
@@ -122,6 +124,13 @@ Calibration parseCalibration(const std::string& yaml_text, const std::string& or
   c.extraction.min_area_fraction = finite(required<double>(e, "min_area_fraction", ew), ew + ".min_area_fraction");
   c.extraction.read_noise_dn = finite(required<double>(e, "read_noise_dn", ew), ew + ".read_noise_dn");
   c.extraction.electrons_per_dn = finite(required<double>(e, "electrons_per_dn", ew), ew + ".electrons_per_dn");
+  // Files written before the hot-pixel repair lack the key: they get the default.
+  if (e["spike_sigmas"]) {
+    const double sigmas = finite(required<double>(e, "spike_sigmas", ew), ew + ".spike_sigmas");
+    if (sigmas < 0.0) throw CalibrationError(ew + ".spike_sigmas must be >= 0 (0: off)");
+    c.extraction.spike_sigmas = sigmas;
+    c.extraction.spike_margin_dn = spikeMargins(c.sensor, sigmas);
+  }
 
   const std::string gw = origin + ": geometry";
   const YAML::Node g = root["geometry"];

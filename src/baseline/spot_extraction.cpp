@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "digital_sun_sensor/baseline/gaussian_fit.h"
+#include "digital_sun_sensor/common/spike_filter.h"
 #include "digital_sun_sensor/model/input_spec.h"
 
 namespace dss {
@@ -85,6 +86,8 @@ SpotExtractionConfig SpotExtractionConfig::forSensor(const SensorConfig& config)
   const auto& n = config.noise;
   out.electrons_per_dn = n.adc_full_scale_e / config.maxCode();
   out.read_noise_dn = n.read_noise_e / out.electrons_per_dn;
+  out.spike_sigmas = kDefaultSpikeSigmas;
+  out.spike_margin_dn = spikeMargins(config, out.spike_sigmas);
   return out;
 }
 
@@ -93,7 +96,7 @@ std::vector<DetectedSpot> extractSpots(const cv::Mat& image, const SpotExtractio
     throw std::invalid_argument("spot extraction needs a non-empty single-channel 8- or 16-bit image");
   const int max_code = image.depth() == CV_8U ? 255 : 65535;
   cv::Mat values;
-  image.convertTo(values, CV_64F);
+  repairSpikes(image, config.spike_margin_dn).convertTo(values, CV_64F);
   double peak = 0.0;
   cv::minMaxLoc(values, nullptr, &peak);
   const double background = medianCode(image, max_code);

@@ -2,6 +2,7 @@
 #include <chrono>
 #include <iostream>
 #include <memory>
+#include <sstream>
 #include <thread>
 
 #include "commands.h"
@@ -69,21 +70,36 @@ int runEval(int argc, char** argv) {
                  "apply calibration_node's screens (hot-pixel removal, saturation, predicted sigma, field "
                  "of view; default thresholds)",
                  "", false, false},
+                {"spike-sigmas", "S",
+                 "with --screen: its hot-pixel repair threshold (0: off; the baseline's own repair is its "
+                 "calibration file's extraction.spike_sigmas)",
+                 [] {
+                   std::ostringstream text;
+                   text << kDefaultSpikeSigmas;
+                   return text.str();
+                 }(), false, false},
                 {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images (0: skip)", "200", false, false},
                 {"batch", "B", "images per estimator call", "16", false, false},
                 {"max-images", "N", "evaluate at most N images (0: all)", "0", false, false},
                 {"threads", "T", "threads for the bound", threads, false, false},
             });
   if (!args.parse(argc, argv, 2)) return 0;
+  ScreenOptions screen;
+  screen.spike_sigmas = args.getDouble("spike-sigmas");
+  try {
+    screen.validate();
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(std::string("dss eval: --spike-sigmas: ") + e.what());
+  }
   sparse::configureThreads(1, 1);  // per-image inference is fastest single-threaded (README)
   const DatasetBagReader reader(args.all("data"));
   std::unique_ptr<SunEstimator> estimator;
   try {
     estimator = makeEstimator(args.get("estimator"));
-    if (args.has("screen")) estimator = std::make_unique<ScreenedEstimator>(std::move(estimator), ScreenOptions{});
   } catch (const std::invalid_argument& e) {
     throw UsageError(std::string("dss eval: --estimator: ") + e.what());
   }
+  if (args.has("screen")) estimator = std::make_unique<ScreenedEstimator>(std::move(estimator), screen);
   const SensorConfig& sensor = estimator->sensor();
   const auto batch_size = static_cast<std::size_t>(std::max(1LL, args.getInt("batch")));
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));

@@ -15,6 +15,8 @@ void ScreenOptions::validate() const {
   if (!(max_sigma_deg > 0.0)) throw std::invalid_argument("max_sigma_deg must be > 0");
   if (!(fov_margin_deg >= 0.0)) throw std::invalid_argument("fov_margin_deg must be >= 0");
   if (min_spot_px < 0) throw std::invalid_argument("min_spot_px must be >= 0");
+  if (!(spike_sigmas >= 0.0 && std::isfinite(spike_sigmas)))
+    throw std::invalid_argument("spike_sigmas must be >= 0 and finite");
 }
 
 namespace {
@@ -113,6 +115,7 @@ ScreenedEstimator::ScreenedEstimator(std::unique_ptr<SunEstimator> inner, Screen
   max_code_ = spec.max_code;
   threshold_dn_ = spec.threshold_dn;
   black_level_dn_ = spec.black_level_dn;
+  spike_margin_dn_ = spikeMargins(inner_->sensor(), options_.spike_sigmas);
 }
 
 std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>& images) {
@@ -126,8 +129,9 @@ std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>&
       where.push_back(i);
       continue;
     }
-    // Hot pixels go first: they would also count as saturated pixels.
-    const Cleaned cleaned = clean(image, threshold_dn_, black_level_dn_, options_.min_spot_px, max_code_);
+    // Hot pixels go first (spikes, then small groups): they would also count as saturated pixels.
+    const Cleaned cleaned = clean(repairSpikes(image, spike_margin_dn_), threshold_dn_, black_level_dn_,
+                                  options_.min_spot_px, max_code_);
     out[i].status = saturationStatus(cleaned.saturated_px, image.total(), options_);
     if (out[i].status.empty()) {
       passed.push_back(cleaned.image);

@@ -66,6 +66,7 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
   max_batch_ = static_cast<std::size_t>(max_batch);
   ScreenOptions screen;
   screen.min_spot_px = pnh_.param("min_spot_px", screen.min_spot_px);
+  screen.spike_sigmas = pnh_.param("spike_sigmas", screen.spike_sigmas);
   screen.max_saturated_fraction = pnh_.param("max_saturated_fraction", screen.max_saturated_fraction);
   screen.max_sigma_deg = pnh_.param("max_sigma_deg", screen.max_sigma_deg);
   screen.fov_margin_deg = pnh_.param("fov_margin_deg", screen.fov_margin_deg);

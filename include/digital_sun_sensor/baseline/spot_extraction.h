@@ -26,6 +26,10 @@ struct SpotExtractionConfig {
   double min_area_fraction = 0.1;   // of the largest component: debris fragments, ghosts
   double read_noise_dn = 0.1;       // for the Gaussian fit's noise model
   double electrons_per_dn = 32.0;
+  // Hot pixels inside or beside a spot are repaired first (common/spike_filter.h):
+  // margins from spikeMargins(sensor, spike_sigmas), empty when off.
+  double spike_sigmas = 0.0;
+  std::vector<int> spike_margin_dn;
 
   // Threshold at the sensor's noise floor (or any nonzero pixel when it
   // thresholds on chip), noise terms from the config.

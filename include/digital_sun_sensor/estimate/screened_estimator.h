@@ -7,6 +7,7 @@
 
 #include <memory>
 
+#include "digital_sun_sensor/common/spike_filter.h"
 #include "digital_sun_sensor/common/sun_estimate.h"
 
 namespace dss {
@@ -16,6 +17,10 @@ struct ScreenOptions {
   // this are removed before estimation: hot pixels and single noise spikes,
   // which the SSCNN would otherwise take as light (0: keep everything).
   int min_spot_px = 5;
+  // Pixels brighter than all 8 neighbours by more than this many noise
+  // standard deviations (common/spike_filter.h) are replaced by the median of
+  // those neighbours: hot pixels inside or beside a spot (0: off).
+  double spike_sigmas = kDefaultSpikeSigmas;
   // More pixels than this fraction of the detector at the top code: "saturated".
   double max_saturated_fraction = 0.01;
   // A predicted 1-sigma (either axis) above this: "out_of_distribution". Only
@@ -54,6 +59,7 @@ class ScreenedEstimator : public SunEstimator {
   ScreenOptions options_;
   int max_code_;
   double threshold_dn_, black_level_dn_;
+  std::vector<int> spike_margin_dn_;
 };
 
 }  // namespace dss
