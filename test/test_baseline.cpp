@@ -242,7 +242,8 @@ TEST(CalibrationFile, RoundTripAndClearErrors) {
   const Calibration old = parseCalibration(replaced("spike_sigmas: 4", "unused_key: 4"), "old.yaml");
   EXPECT_EQ(old.extraction.spike_sigmas, kDefaultSpikeSigmas);
   EXPECT_EQ(old.extraction.spike_margin_dn, c.extraction.spike_margin_dn);
-  EXPECT_TRUE(parseCalibration(replaced("spike_sigmas: 4", "spike_sigmas: 0"), "off.yaml").extraction.spike_margin_dn.empty());
+  EXPECT_TRUE(
+      parseCalibration(replaced("spike_sigmas: 4", "spike_sigmas: 0"), "off.yaml").extraction.spike_margin_dn.empty());
   EXPECT_THROW(loadCalibration("/nonexistent/calib.yaml"), CalibrationError);
 }
 

@@ -106,7 +106,8 @@ TEST(SpikeFilter, HotPixelsInARenderedSpotAreRepairedAndItsLightIsNot) {
     while (placed.size() < 6) {
       const cv::Point p = lit[pick(rng)];
       if (p.x < 1 || p.y < 1 || p.x >= hot.cols - 1 || p.y >= hot.rows - 1) continue;
-      if (std::any_of(placed.begin(), placed.end(), [&](const cv::Point& q) { return cv::norm(p - q) < 3.0; })) continue;
+      if (std::any_of(placed.begin(), placed.end(), [&](const cv::Point& q) { return cv::norm(p - q) < 3.0; }))
+        continue;
       hot.at<std::uint8_t>(p) = cv::saturate_cast<std::uint8_t>(hot.at<std::uint8_t>(p) + 120);
       placed.push_back(p);
     }

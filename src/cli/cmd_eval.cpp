@@ -77,7 +77,8 @@ int runEval(int argc, char** argv) {
                    std::ostringstream text;
                    text << kDefaultSpikeSigmas;
                    return text.str();
-                 }(), false, false},
+                 }(),
+                 false, false},
                 {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images (0: skip)", "200", false, false},
                 {"batch", "B", "images per estimator call", "16", false, false},
                 {"max-images", "N", "evaluate at most N images (0: all)", "0", false, false},

@@ -19,8 +19,8 @@ std::vector<int> spikeMargins(const SensorConfig& sensor, double sigmas) {
   for (int code = 0; code <= max_code; ++code) {
     const double raw_dn = stretch > 1.0 ? level + code / stretch : code;
     const double electrons = std::max(0.0, (raw_dn - n.black_level_dn) / gain_dn_per_e);
-    const double var_e = (n.shot_noise ? electrons : 0.0) + n.read_noise_e * n.read_noise_e +
-                         std::pow(n.prnu_fraction * electrons, 2);
+    const double var_e =
+        (n.shot_noise ? electrons : 0.0) + n.read_noise_e * n.read_noise_e + std::pow(n.prnu_fraction * electrons, 2);
     const double sigma_out = std::sqrt(var_e * gain_dn_per_e * gain_dn_per_e + 1.0 / 12.0) * stretch;
     margin[code] = static_cast<int>(std::ceil(sigmas * std::sqrt(2.0) * sigma_out + kSpikePeakAllowance * code)) + 1;
   }

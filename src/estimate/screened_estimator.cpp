@@ -130,8 +130,8 @@ std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>&
       continue;
     }
     // Hot pixels go first (spikes, then small groups): they would also count as saturated pixels.
-    const Cleaned cleaned = clean(repairSpikes(image, spike_margin_dn_), threshold_dn_, black_level_dn_,
-                                  options_.min_spot_px, max_code_);
+    const Cleaned cleaned =
+        clean(repairSpikes(image, spike_margin_dn_), threshold_dn_, black_level_dn_, options_.min_spot_px, max_code_);
     out[i].status = saturationStatus(cleaned.saturated_px, image.total(), options_);
     if (out[i].status.empty()) {
       passed.push_back(cleaned.image);
