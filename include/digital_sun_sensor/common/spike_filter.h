@@ -17,9 +17,10 @@ namespace dss {
 // The default, chosen on hot-pixel and nominal images of every shipped sensor
 // (README "Hot pixels"): 6 caught fewer hot pixels, 3 did no better than 4.
 constexpr double kDefaultSpikeSigmas = 4.0;
-// Diffraction peaks of wide_ma's 30 um pinholes are sharp: a real central
-// pixel reads up to ~1.2 times its brightest neighbour. This share of the
-// neighbour's code is allowed on top of the noise margin.
+// Diffraction peaks of wide_ma's small pinholes are sharp: a real central
+// pixel reads 1.15-1.4 times its brightest neighbour (the most at low codes,
+// where the noise margin is wide). This share of the neighbour's code is
+// allowed on top of the noise margin.
 constexpr double kSpikePeakAllowance = 0.1;
 
 // Per output code m of the brightest neighbour, how far above m a pixel may
