@@ -48,6 +48,12 @@ bool Args::parse(int argc, char** argv, int first) {
   return true;
 }
 
+std::string defaultText(double value) {
+  std::ostringstream o;
+  o << value;
+  return o.str();
+}
+
 std::string Args::help() const {
   std::ostringstream o;
   o << "usage: " << command_;

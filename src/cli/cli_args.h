@@ -15,13 +15,16 @@ class UsageError : public std::runtime_error {
 };
 
 struct OptionSpec {
-  std::string name;  // without dashes
+  std::string name;        // without dashes
   std::string value_name;  // empty: boolean switch
   std::string help;
   std::string default_value;
   bool required = false;
   bool repeatable = false;
 };
+
+// A number as an option's default text ("4", "0.001"): the shortest stream form.
+std::string defaultText(double value);
 
 class Args {
  public:

@@ -2,7 +2,6 @@
 #include <chrono>
 #include <iostream>
 #include <memory>
-#include <sstream>
 #include <thread>
 
 #include "commands.h"
@@ -73,12 +72,7 @@ int runEval(int argc, char** argv) {
                 {"spike-sigmas", "S",
                  "with --screen: its hot-pixel repair threshold (0: off; the baseline's own repair is its "
                  "calibration file's extraction.spike_sigmas)",
-                 [] {
-                   std::ostringstream text;
-                   text << kDefaultSpikeSigmas;
-                   return text.str();
-                 }(),
-                 false, false},
+                 defaultText(kDefaultSpikeSigmas), false, false},
                 {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images (0: skip)", "200", false, false},
                 {"batch", "B", "images per estimator call", "16", false, false},
                 {"max-images", "N", "evaluate at most N images (0: all)", "0", false, false},

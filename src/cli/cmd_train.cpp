@@ -3,7 +3,6 @@
 #include <csignal>
 #include <iostream>
 #include <optional>
-#include <sstream>
 
 #include "commands.h"
 #include "digital_sun_sensor/model/arch.h"
@@ -21,11 +20,6 @@ extern "C" void onStopSignal(int) { g_stop = true; }
 
 int runTrain(int argc, char** argv) {
   const TrainOptions defaults;
-  auto num = [](double v) {
-    std::ostringstream os;
-    os << v;
-    return os.str();
-  };
   Args args(
       "dss train",
       "Trains an SSCNN on labelled dataset bags (same core as trainer_node). Progress on stderr; checkpoints every "
@@ -47,12 +41,12 @@ int runTrain(int argc, char** argv) {
           {"init", "MODEL", "start from this model's weights (fine-tuning; it must suit the sensor)", "", false, false},
           {"resume", "CKPT", "continue from this checkpoint", "", false, false},
           {"checkpoint", "CKPT", "checkpoint file (default: MODEL.ckpt, or the --resume file)", "", false, false},
-          {"checkpoint-minutes", "M", "minutes between checkpoints", num(defaults.checkpoint_interval_s / 60), false,
-           false},
+          {"checkpoint-minutes", "M", "minutes between checkpoints", defaultText(defaults.checkpoint_interval_s / 60),
+           false, false},
           {"epochs", "N", "epochs of the learning-rate schedule", std::to_string(defaults.epochs), false, false},
           {"batch", "B", "images per step", std::to_string(defaults.batch_size), false, false},
-          {"lr", "LR", "peak learning rate (AdamW)", num(defaults.learning_rate), false, false},
-          {"weight-decay", "W", "AdamW decoupled weight decay", num(defaults.weight_decay), false, false},
+          {"lr", "LR", "peak learning rate (AdamW)", defaultText(defaults.learning_rate), false, false},
+          {"weight-decay", "W", "AdamW decoupled weight decay", defaultText(defaults.weight_decay), false, false},
           {"patience", "N", "stop after N epochs without validation improvement (0: never)",
            std::to_string(defaults.patience_epochs), false, false},
           {"val-fraction", "F", "fraction of the images held out for validation", "0.1", false, false},
