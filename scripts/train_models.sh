@@ -15,26 +15,27 @@ DATA="${DATA_DIR:-$WS/models_data}"
 mkdir -p "$DATA" "$ROOT/models"
 
 # sensor, training images, training seed, test seed, epochs, architecture, sigma-calibration seed,
-# centroid weighting, angle correction (maximum degree fitted on the sigma bag; keep: none fitted)
+# centroid weighting, angle correction (maximum degree fitted on the sigma bag; keep: none fitted),
+# inference symmetry (dihedral: estimates averaged over the 8 mirror images; keep: none)
 recipe() {
   case "$1" in
-    thesis_sa) echo "60000 501 502 45 resnet18_w32 503 learned keep" ;;
-    thesis_ma) echo "60000 511 512 22 resnet10_w16 513 learned keep" ;;
-    wide_ma) echo "24000 521 522 7 resnet10_w16 523 value 16" ;;
-    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep" ;;
+    thesis_sa) echo "60000 501 502 45 resnet18_w32 503 learned keep dihedral" ;;
+    thesis_ma) echo "60000 511 512 22 resnet10_w16 513 learned keep dihedral" ;;
+    wide_ma) echo "24000 521 522 7 resnet10_w16 523 value 16 keep" ;;
+    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep dihedral" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
 
 for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
   for s in $sensor; do
-    read -r count train_seed test_seed epochs arch sigma_seed weighting correction <<<"$(recipe "$s")"
+    read -r count train_seed test_seed epochs arch sigma_seed weighting correction symmetry <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
     sigma="$DATA/$s.sigma.bag"
     [ -f "$train" ] || "$DSS" generate --sensor "$cfg" --count "$count" --seed "$train_seed" --out "$train"
     [ -f "$test" ] || "$DSS" generate --sensor "$cfg" --count 10000 --seed "$test_seed" --out "$test"
     [ -f "$sigma" ] || "$DSS" generate --sensor "$cfg" --count 5000 --seed "$sigma_seed" --out "$sigma"
-    train_and_evaluate "$s" "$train" "$test" "$sigma" "$epochs" "$arch" "$correction" \
+    train_and_evaluate "$s" "$train" "$test" "$sigma" "$epochs" "$arch" "$correction" "$symmetry" \
       --centroid-weighting "$weighting"
   done
 done

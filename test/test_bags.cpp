@@ -123,6 +123,18 @@ TEST(Generate, BadInputGetsClearErrors) {
     EXPECT_NE(r.output.find("--correction-degree"), std::string::npos) << r.output;
     EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   }
+  // And a symmetry that is unknown, or that the model's sensor lacks.
+  r = run("calibrate-sigma --model models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --out " + out +
+          " --symmetry mirror");
+  EXPECT_EQ(r.code, 2) << r.output;
+  EXPECT_NE(r.output.find("--symmetry"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
+  r = run("calibrate-sigma --model models/wide_ma.dssmodel --data /nonexistent_dir/x.bag --out " + out +
+          " --symmetry flips");
+  EXPECT_EQ(r.code, 2) << r.output;
+  EXPECT_NE(r.output.find("sensor 'wide_ma' lacks that symmetry: aperture"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
+  EXPECT_FALSE(exists(out));
   // So does eval a bad spike threshold for its screen.
   r = run("eval --estimator sscnn:models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --screen --spike-sigmas -1");
   EXPECT_EQ(r.code, 2) << r.output;

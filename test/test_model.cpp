@@ -1,10 +1,11 @@
 // SSCNN model: batch independence, save/load round trip, rejected files,
-// and a tiny network that overfits simulated images.
+// inference over mirror images, and a tiny network that overfits simulated images.
 #include <gtest/gtest.h>
 #include <torch/optim/adam.h>
 
 #include <cstdio>
 #include <fstream>
+#include <opencv2/core.hpp>
 
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
@@ -246,6 +247,107 @@ TEST(Sscnn, TinyNetworkOverfitsSimulatedImages) {
 
 // Every shipped model loads with this build (names and shapes of every
 // tensor) and estimates simulated images of its sensor to its README accuracy.
+// Which sensors have which mirror symmetries, and what breaks them.
+TEST(InferenceSymmetry, SensorsWithAndWithoutTheSymmetry) {
+  for (const char* name : {"thesis_sa", "thesis_ma", "thesis_sa_t50"}) {
+    EXPECT_EQ(symmetryMismatch(shipped(name), InferenceSymmetry::kDihedral), "") << name;
+    EXPECT_EQ(symmetryMismatch(shipped(name), InferenceSymmetry::kFlips), "") << name;
+  }
+  // wide_ma's aperture code is its own under no mirror: the diameters tell the apertures apart.
+  EXPECT_TRUE(contains(symmetryMismatch(shipped("wide_ma"), InferenceSymmetry::kFlips), "no counterpart"));
+  SensorConfig moved = shipped("thesis_ma");
+  moved.mask.apertures[0].x_um += 1.0;
+  EXPECT_TRUE(contains(symmetryMismatch(moved, InferenceSymmetry::kFlips), "aperture 0 at (-264.05, -265.05) um"));
+  SensorConfig wide_detector = shipped("thesis_sa");
+  wide_detector.detector.width_px = 640;
+  EXPECT_EQ(symmetryMismatch(wide_detector, InferenceSymmetry::kFlips), "");
+  EXPECT_TRUE(contains(symmetryMismatch(wide_detector, InferenceSymmetry::kDihedral), "not square"));
+  SensorConfig narrow_field = shipped("thesis_sa");
+  narrow_field.fov.beta_max_deg = 2.0;
+  EXPECT_TRUE(contains(symmetryMismatch(narrow_field, InferenceSymmetry::kDihedral), "field of view"));
+  // A slit: mirrored in x or y it is itself, transposed it is not; a square is itself under all.
+  SensorConfig slit = shipped("thesis_sa");
+  slit.mask.apertures[0].shape = ApertureShape::kRectangle;
+  slit.mask.apertures[0].width_um = 40.0;
+  slit.mask.apertures[0].height_um = 20.0;
+  EXPECT_EQ(symmetryMismatch(slit, InferenceSymmetry::kFlips), "");
+  EXPECT_NE(symmetryMismatch(slit, InferenceSymmetry::kDihedral), "");
+  slit.mask.apertures[0].rotation_deg = 90.0;  // the same slit as 20 x 40 at 0
+  EXPECT_EQ(symmetryMismatch(slit, InferenceSymmetry::kFlips), "");
+  slit.mask.apertures[0].rotation_deg = 30.0;
+  EXPECT_NE(symmetryMismatch(slit, InferenceSymmetry::kFlips), "");
+  slit.mask.apertures[0].height_um = 40.0;
+  slit.mask.apertures[0].rotation_deg = 0.0;
+  EXPECT_EQ(symmetryMismatch(slit, InferenceSymmetry::kDihedral), "");
+  EXPECT_THROW(parseInferenceSymmetry("mirror"), std::invalid_argument);
+  EXPECT_EQ(parseInferenceSymmetry("dihedral"), InferenceSymmetry::kDihedral);
+}
+
+// Averaged over the mirror images, the estimate of a mirrored image is the
+// mirrored estimate, exactly; a trained network alone is not equivariant. The
+// model file keeps the symmetry and refuses one the sensor lacks.
+TEST(InferenceSymmetry, AveragedEstimatesAreExactlyEquivariant) {
+  const SensorConfig c = shipped("thesis_sa");
+  Model m = loadModel(std::string(DSS_SOURCE_DIR) + "/models/thesis_sa.dssmodel", &c);
+  const cv::Mat& image = images()[1].image;
+  auto mirrors = [](const cv::Mat& img) {
+    std::vector<cv::Mat> out;
+    cv::Mat t, f;
+    cv::transpose(img, t);
+    for (const cv::Mat& base : {img, t}) {
+      out.push_back(base.clone());
+      for (int code : {1, 0, -1}) {
+        cv::flip(base, f, code);
+        out.push_back(f.clone());
+      }
+    }
+    return out;
+  };
+  const std::vector<cv::Mat> mirrored = mirrors(image);
+  const std::vector<PixelTransform> transforms = symmetryTransforms(InferenceSymmetry::kDihedral);
+  ASSERT_EQ(transforms.size(), mirrored.size());
+  // Largest disagreement, over the mirror images, between their estimate mapped back and the image's.
+  auto disagreement = [&](const Model& model) {
+    const std::vector<Prediction> p = model.predict(mirrored);
+    double worst = 0.0;
+    for (std::size_t g = 1; g < p.size(); ++g) {
+      double alpha = p[g].alpha_rad, beta = p[g].beta_rad;
+      transforms[g].unmapAngles(alpha, beta);
+      worst = std::max({worst, std::abs(alpha - p[0].alpha_rad), std::abs(beta - p[0].beta_rad)});
+    }
+    return worst;
+  };
+  const double alone = disagreement(m);
+  m.meta.inference_symmetry = InferenceSymmetry::kDihedral;
+  const double averaged = disagreement(m);
+  EXPECT_GT(alone, 1e-6) << alone;  // radians
+  EXPECT_LT(averaged, 1e-9) << averaged;
+  // Training samples take the same path as images.
+  TrainingSet set(m.meta.input);
+  set.add(image, 0.0, 0.0, 0);
+  const Prediction from_image = m.predict({image})[0];
+  const Prediction from_sample = m.predictSamples({&set.samples()[0]})[0];
+  EXPECT_NEAR(from_sample.alpha_rad, from_image.alpha_rad, 1e-9);
+  EXPECT_NEAR(from_sample.beta_rad, from_image.beta_rad, 1e-9);
+  EXPECT_EQ(from_sample.active_sites, from_image.active_sites);
+
+  const Model loaded = deserializeModel(serializeModel(m), "symmetric", &c);
+  EXPECT_EQ(loaded.meta.inference_symmetry, InferenceSymmetry::kDihedral);
+  std::string yaml = metadataToYaml(m.meta);
+  yaml.replace(yaml.find("inference_symmetry: dihedral"), 28, "inference_symmetry: mirror");
+  try {
+    metadataFromYaml(yaml, "edited");
+    ADD_FAILURE() << "accepted an unknown symmetry";
+  } catch (const ModelError& e) {
+    EXPECT_TRUE(contains(e.what(), "'inference_symmetry'")) << e.what();
+  }
+  SensorConfig off_centre = c;
+  off_centre.mask.apertures[0].x_um = 20.0;
+  Model asymmetric = createModel(off_centre, "resnet10_w16", 4);
+  asymmetric.meta.inference_symmetry = InferenceSymmetry::kFlips;
+  EXPECT_TRUE(contains(expectModelError(serializeModel(asymmetric)), "lacks that symmetry: aperture 0"));
+}
+
 TEST(ShippedModels, LoadAndEstimate) {
   const SensorConfig config = shipped("thesis_sa");
   const Model model = loadModel(std::string(DSS_SOURCE_DIR) + "/models/thesis_sa.dssmodel", &config);

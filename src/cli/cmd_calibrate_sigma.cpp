@@ -1,7 +1,8 @@
-// dss calibrate-sigma: on labelled held-out images, optionally refits the
-// model's smooth angle correction (src/train/bias_calibration), then refits the
-// level of its predicted uncertainty (src/train/sigma_calibration), records
-// their input envelope (model/input_envelope) and writes the model.
+// dss calibrate-sigma: on labelled held-out images, optionally sets the
+// model's inference symmetry (model/symmetry) and refits its smooth angle
+// correction (src/train/bias_calibration), then refits the level of its
+// predicted uncertainty (src/train/sigma_calibration), records their input
+// envelope (model/input_envelope) and writes the model.
 #include <cmath>
 #include <iostream>
 #include <optional>
@@ -37,6 +38,10 @@ int runCalibrateSigma(int argc, char** argv) {
            "angle correction: 'keep' the model's, 'none', or refit one of degree at most D (0.." +
                std::to_string(AngleCorrection::kMaxDegree) + ")",
            "keep", false, false},
+          {"symmetry", "S",
+           "average the estimates over the sensor's mirror images: 'keep' the model's, 'none', 'flips' (4 images) or "
+           "'dihedral' (8; square detectors); the sensor must have the symmetry",
+           "keep", false, false},
       });
   if (!args.parse(argc, argv, 2)) return 0;
   // Checked before the bags are read, which can take minutes.
@@ -48,9 +53,25 @@ int runCalibrateSigma(int argc, char** argv) {
       throw UsageError("dss calibrate-sigma: --correction-degree must be keep, none or 0.." +
                        std::to_string(AngleCorrection::kMaxDegree) + ", not " + correction);
   }
+  std::optional<InferenceSymmetry> symmetry;  // none: keep the model's
+  if (args.get("symmetry") != "keep") {
+    try {
+      symmetry = parseInferenceSymmetry(args.get("symmetry"));
+    } catch (const std::invalid_argument& e) {
+      throw UsageError(std::string("dss calibrate-sigma: --symmetry: ") + e.what() + " (or 'keep')");
+    }
+  }
   sparse::configureThreads(1, 2);
   Model model = loadModel(args.get("model"));
   const SensorConfig sensor = parseSensorConfig(model.meta.sensor_yaml, args.get("model") + " (sensor)");
+  if (symmetry) {
+    const std::string why = symmetryMismatch(sensor, *symmetry);
+    if (!why.empty())
+      throw UsageError("dss calibrate-sigma: --symmetry " + args.get("symmetry") + ": sensor '" + sensor.name +
+                       "' lacks that symmetry: " + why);
+    // Before the fits: the correction and the sigma are those of the averaged estimates.
+    model.meta.inference_symmetry = *symmetry;
+  }
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
   std::unique_ptr<Progress> reading;
   const TrainingData data =
@@ -84,7 +105,8 @@ int runCalibrateSigma(int argc, char** argv) {
             << ", \"sigma_mode\": \"" << (c.constant ? "constant" : "head")
             << "\", \"constant_sigma_alpha_deg\": " << c.constant_sigma_alpha_rad * 180.0 / M_PI
             << ", \"constant_sigma_beta_deg\": " << c.constant_sigma_beta_rad * 180.0 / M_PI
-            << ", \"correction_degree\": " << model.meta.angle_correction.degree;
+            << ", \"correction_degree\": " << model.meta.angle_correction.degree << ", \"inference_symmetry\": \""
+            << inferenceSymmetryName(model.meta.inference_symmetry) << "\"";
   if (bias) {
     std::cout << ", \"correction_cv_rms_deg\": [";
     for (std::size_t k = 0; k < bias->cross_validated_rms_deg.size(); ++k)

@@ -187,6 +187,7 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "beta" << YAML::Value << YAML::Flow << m.angle_correction.beta;
     e << YAML::EndMap;
   }
+  e << YAML::Key << "inference_symmetry" << YAML::Value << inferenceSymmetryName(m.inference_symmetry);
   e << YAML::Key << "sensor_name" << YAML::Value << m.sensor_name;
   e << YAML::Key << "training" << YAML::Value << mapFromText(m.training_yaml, "training summary");
   e << YAML::Key << "metrics" << YAML::Value << mapFromText(m.metrics_yaml, "metrics");
@@ -280,6 +281,25 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
   m.sensor_yaml = get<std::string>(root, "sensor", origin, "");
+  if (root["inference_symmetry"]) {  // absent in models made before it existed: none
+    try {
+      m.inference_symmetry = parseInferenceSymmetry(get<std::string>(root, "inference_symmetry", origin, ""));
+    } catch (const std::invalid_argument& e) {
+      throw ModelError(origin + ": metadata key 'inference_symmetry': " + e.what());
+    }
+    if (m.inference_symmetry != InferenceSymmetry::kNone) {
+      std::string why;
+      try {
+        why = symmetryMismatch(parseSensorConfig(m.sensor_yaml, origin + " (embedded sensor config)"),
+                               m.inference_symmetry);
+      } catch (const ConfigError& e) {
+        throw ModelError(e.what());
+      }
+      if (!why.empty())
+        throw ModelError(origin + ": metadata key 'inference_symmetry' is '" +
+                         inferenceSymmetryName(m.inference_symmetry) + "' but the sensor lacks that symmetry: " + why);
+    }
+  }
   m.training_yaml = YAML::Dump(root["training"] ? root["training"] : YAML::Node(YAML::NodeType::Map));
   m.metrics_yaml = YAML::Dump(root["metrics"] ? root["metrics"] : YAML::Node(YAML::NodeType::Map));
   return m;

@@ -10,6 +10,11 @@ namespace {
 
 using Pixel = ActivePixel;
 
+void sortRowMajor(std::vector<Pixel>& pixels) {
+  std::sort(pixels.begin(), pixels.end(),
+            [](const Pixel& a, const Pixel& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });
+}
+
 // Keeps the brightest spec.max_sites pixels (ties by position, deterministic), in row-major order.
 void limitSites(std::vector<Pixel>& pixels, const InputSpec& spec) {
   if (static_cast<int>(pixels.size()) <= spec.max_sites) return;
@@ -17,7 +22,7 @@ void limitSites(std::vector<Pixel>& pixels, const InputSpec& spec) {
     return a.dn != b.dn ? a.dn > b.dn : (a.y != b.y ? a.y < b.y : a.x < b.x);
   });
   pixels.resize(static_cast<std::size_t>(spec.max_sites));
-  std::sort(pixels.begin(), pixels.end(), [](const Pixel& a, const Pixel& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });
+  sortRowMajor(pixels);
 }
 
 std::vector<Pixel> activePixels(const cv::Mat& image, const InputSpec& spec) {
@@ -34,6 +39,20 @@ class BatchEncoder {
         value_scale_(1.0 / std::max(1.0, spec.max_code - spec.black_level_dn)),
         cx_(0.5 * (spec.width_px - 1)),
         cy_(0.5 * (spec.height_px - 1)) {}
+
+  // The image once per transform, each its own batch entry.
+  void addImage(const std::vector<Pixel>& pixels, const std::vector<PixelTransform>& transforms) {
+    for (const PixelTransform& t : transforms) {
+      if (!t.transpose && !t.flip_x && !t.flip_y) {
+        addImage(pixels);
+        continue;
+      }
+      mirrored_ = pixels;
+      for (Pixel& p : mirrored_) t.apply(p.x, p.y, spec_.width_px, spec_.height_px);
+      sortRowMajor(mirrored_);
+      addImage(mirrored_);
+    }
+  }
 
   void addImage(const std::vector<Pixel>& pixels) {
     for (const Pixel& p : pixels) {
@@ -58,25 +77,34 @@ class BatchEncoder {
   std::int32_t images_ = 0;
   std::vector<sparse::Site> sites_;
   std::vector<float> features_;
+  std::vector<Pixel> mirrored_;  // reused between images
 };
 
 }  // namespace
 
-sparse::SparseTensor encodeImages(const std::vector<cv::Mat>& images, const InputSpec& spec, torch::Dtype dtype) {
-  BatchEncoder encoder(spec);
+void checkImages(const std::vector<cv::Mat>& images, const InputSpec& spec) {
   for (std::size_t b = 0; b < images.size(); ++b) {
     try {
       spec.checkImage(images[b]);
     } catch (const std::invalid_argument& e) {
       throw std::invalid_argument("image " + std::to_string(b) + " of the batch: " + e.what());
     }
-    encoder.addImage(activePixels(images[b], spec));
   }
+}
+
+sparse::SparseTensor encodeImages(const std::vector<cv::Mat>& images, const InputSpec& spec, torch::Dtype dtype,
+                                  InferenceSymmetry symmetry) {
+  checkImages(images, spec);
+  BatchEncoder encoder(spec);
+  const std::vector<PixelTransform> transforms = symmetryTransforms(symmetry);
+  for (const cv::Mat& image : images) encoder.addImage(activePixels(image, spec), transforms);
   return encoder.finish(dtype);
 }
 
-sparse::SparseTensor encodeSamples(const std::vector<const SparseSample*>& samples, const InputSpec& spec) {
+sparse::SparseTensor encodeSamples(const std::vector<const SparseSample*>& samples, const InputSpec& spec,
+                                   InferenceSymmetry symmetry) {
   BatchEncoder encoder(spec);
+  const std::vector<PixelTransform> transforms = symmetryTransforms(symmetry);
   std::vector<Pixel> pixels;
   for (const SparseSample* s : samples) {
     pixels.clear();
@@ -84,7 +112,7 @@ sparse::SparseTensor encodeSamples(const std::vector<const SparseSample*>& sampl
       if (s->dn[i] > spec.threshold_dn)
         pixels.push_back({static_cast<int>(s->pixels[i] >> 16), static_cast<int>(s->pixels[i] & 0xFFFF), s->dn[i]});
     limitSites(pixels, spec);
-    encoder.addImage(pixels);
+    encoder.addImage(pixels, transforms);
   }
   return encoder.finish(torch::kFloat);
 }

@@ -175,6 +175,9 @@ struct Trainer::Impl {
       model = loadModel(options.init_model, &sensor);  // ModelError names the file and the mismatch
       // Its angle correction fitted that network's bias, which training changes.
       model.meta.angle_correction = AngleCorrection{};
+      // Validation reads single images, as training does; calibrate-sigma
+      // sets the symmetry again where wanted.
+      model.meta.inference_symmetry = InferenceSymmetry::kNone;
       if (options.arch.empty()) options.arch = model.meta.arch.name;
       if (model.meta.arch.name != options.arch)
         throw std::invalid_argument("training option init_model: " + options.init_model + " is " +

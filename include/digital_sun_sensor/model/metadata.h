@@ -8,6 +8,7 @@
 #include "digital_sun_sensor/model/angle_correction.h"
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/model/input_spec.h"
+#include "digital_sun_sensor/model/symmetry.h"
 
 namespace dss {
 
@@ -22,6 +23,9 @@ struct ModelMetadata {
   InputSpec input;
   double angle_scale_rad = 0.0;      // network angle output 1.0 = this many radians
   AngleCorrection angle_correction;  // fitted after training (none until then)
+  // Estimates averaged over these mirror images (set after training, by dss
+  // calibrate-sigma; the sensor must have the symmetry).
+  InferenceSymmetry inference_symmetry = InferenceSymmetry::kNone;
   std::string sensor_name;
   std::string sensor_yaml;    // canonical config (toYaml) the model was made for
   std::string training_yaml;  // YAML map: data, schedule, wall time ("{}" untrained)

@@ -32,10 +32,11 @@ struct Model {
   ModelMetadata meta;
   std::shared_ptr<SscnnNetImpl> net;
 
-  // Inference on a batch of sensor images (eval mode, no autograd).
+  // Inference on sensor images (eval mode, no autograd), averaged over the
+  // metadata's inference symmetry; in passes of at most 16 network inputs.
   std::vector<Prediction> predict(const std::vector<cv::Mat>& images) const;
   // The same for samples already reduced to their sites (training data), in
-  // batches of 64; no autograd, and the caller chooses train or eval mode.
+  // passes of 64 inputs; no autograd, and the caller chooses train or eval mode.
   std::vector<Prediction> predictSamples(const std::vector<const SparseSample*>& samples) const;
   // Network outputs to angles (the metadata's angle correction subtracted), variances and classes.
   std::vector<Prediction> decode(const SscnnOutput& out, const sparse::SiteSet& sites) const;
