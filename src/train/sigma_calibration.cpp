@@ -21,8 +21,15 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
   c.samples = za.size();
   c.alpha_before = measureCoverage(za);
   c.beta_before = measureCoverage(zb);
-  c.scale_alpha = sigmaScaleForCoverage(za);
-  c.scale_beta = sigmaScaleForCoverage(zb);
+  // Averaged over mirror images that swap the axes (dihedral), each axis's
+  // variance is the same mix of the head's two outputs, and the sensor's
+  // alpha and beta errors are alike by symmetry: one factor (or one constant)
+  // for both, fitted on the errors of both.
+  const bool axes_exchange = model.meta.inference_symmetry == InferenceSymmetry::kDihedral;
+  std::vector<ErrorAndSigma> both = za;
+  both.insert(both.end(), zb.begin(), zb.end());
+  c.scale_alpha = sigmaScaleForCoverage(axes_exchange ? both : za);
+  c.scale_beta = axes_exchange ? c.scale_alpha : sigmaScaleForCoverage(zb);
   for (auto& s : za) s.sigma_rad *= c.scale_alpha;
   for (auto& s : zb) s.sigma_rad *= c.scale_beta;
   c.alpha_after = measureCoverage(za);
@@ -31,9 +38,10 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
   // The same 1-sigma level from one sigma per axis: where the head's shape
   // does not follow the error (its 2 and 3 sigma coverage further from the
   // Gaussian's than a constant's), the constant is the honest answer.
-  auto constant = [](std::vector<ErrorAndSigma> z) {
-    for (auto& s : z) s.sigma_rad = 1.0;
-    const double sigma = sigmaScaleForCoverage(z);
+  auto constant = [&](std::vector<ErrorAndSigma> z) {
+    std::vector<ErrorAndSigma> fit = axes_exchange ? both : z;
+    for (auto& s : fit) s.sigma_rad = 1.0;
+    const double sigma = sigmaScaleForCoverage(fit);
     for (auto& s : z) s.sigma_rad = sigma;
     return std::make_pair(sigma, measureCoverage(z));
   };

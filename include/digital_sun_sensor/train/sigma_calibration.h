@@ -29,7 +29,9 @@ struct SigmaCalibration {
 
 // Fits and applies the factors (or the constant) on (at most `max_samples`, evenly spaced)
 // samples of `data`, which must be encoded with the model's input spec, and
-// records them in the model's metrics. Throws std::invalid_argument when
+// records them in the model's metrics. Under a dihedral inference symmetry
+// both axes get one factor (or constant), fitted on both axes' errors: the
+// averaged variances mix the head's two outputs. Throws std::invalid_argument when
 // `data` is empty or its spec differs from the model's.
 SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples);
 
