@@ -35,6 +35,6 @@ for sensor in "${@:-thesis_sa thesis_ma}"; do
     [ -f "$train" ] || "$DSS" generate "${protocol[@]}" --count 30000 --out "$train"
     [ -f "$test" ] || "$DSS" generate "${protocol[@]}" --count 10000 --offset 30000 --out "$test"
     [ -f "$sigma" ] || "$DSS" generate "${protocol[@]}" --count 5000 --offset 40000 --out "$sigma"
-    train_and_evaluate "$name" "$train" "$test" "$sigma" "$epochs" resnet10_w16 keep keep
+    train_and_evaluate "$name" "$train" "$test" "$sigma" "$epochs" resnet10_w16 keep dihedral
   done
 done

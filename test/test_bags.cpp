@@ -135,9 +135,13 @@ TEST(Generate, BadInputGetsClearErrors) {
   EXPECT_NE(r.output.find("sensor 'wide_ma' lacks that symmetry: aperture"), std::string::npos) << r.output;
   EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   EXPECT_FALSE(exists(out));
-  // So does eval a bad spike threshold for its screen.
+  // So does eval a bad spike threshold for its screen, or a symmetry it does not choose.
   r = run("eval --estimator sscnn:models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --screen --spike-sigmas -1");
   EXPECT_EQ(r.code, 2) << r.output;
+  r = run("eval --estimator sscnn:models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --symmetry dihedral");
+  EXPECT_EQ(r.code, 2) << r.output;
+  EXPECT_NE(r.output.find("--symmetry: inference symmetry must be 'model'"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("--spike-sigmas"), std::string::npos) << r.output;
   EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   r = run("--help");

@@ -165,6 +165,24 @@ TEST(CalibrationNode, WithoutModelOrCalibrationAnswersInvalid) {
   EXPECT_NE(status.message.find("no estimator"), std::string::npos) << status.message;
 }
 
+TEST(CalibrationNode, InferenceSymmetryNoneEstimatesTheImageAlone) {
+  ros::NodeHandle nh;
+  ros::Subscriber diagnostics = subscribeDiagnostics(nh);
+  Client averaged("/sun_sensor"), alone("/alone/sun_sensor");
+  waitFor(averaged);
+  waitFor(alone);
+  const SunAngles::ConstPtr a = averaged.ask(renderedImage(-2.0, 1.5));
+  const SunAngles::ConstPtr b = alone.ask(renderedImage(-2.0, 1.5));
+  ASSERT_TRUE(a && b);
+  ASSERT_TRUE(a->valid && b->valid) << a->status << " / " << b->status;
+  // Both right; not the same number, since one is the mean over 8 mirror images.
+  EXPECT_NEAR(b->alpha, -2.0 * kRad, 0.01 * kRad);
+  EXPECT_NEAR(b->beta, 1.5 * kRad, 0.01 * kRad);
+  EXPECT_TRUE(a->alpha != b->alpha || a->beta != b->beta);
+  EXPECT_EQ(value(latestStatus("sun_sensor/calibration"), "inference symmetry"), "dihedral");
+  EXPECT_EQ(value(latestStatus("alone/sun_sensor/calibration"), "inference symmetry"), "none");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {

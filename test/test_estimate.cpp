@@ -184,6 +184,26 @@ TEST(EstimatorFactory, ParsesSpecsAndChecksTheSensor) {
   }
 }
 
+// The shipped thesis_sa model averages over its 8 mirror images; the option
+// sets that aside (calibration_node's ~inference_symmetry: none).
+TEST(EstimatorFactory, MirrorAverageCanBeSetAside) {
+  EXPECT_TRUE(mirrorAverageFromName("model"));
+  EXPECT_FALSE(mirrorAverageFromName("none"));
+  try {
+    mirrorAverageFromName("dihedral");
+    ADD_FAILURE() << "'dihedral' was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("'dihedral'"), std::string::npos) << e.what();
+  }
+  const SensorConfig sa = shipped("thesis_sa");
+  const SscnnEstimator averaged(modelPath(), &sa), alone(modelPath(), &sa, false);
+  EXPECT_EQ(averaged.inferenceSymmetry(), "dihedral");
+  EXPECT_EQ(alone.inferenceSymmetry(), "none");
+  EstimatorChoice choice = chooseEstimator(modelPath(), calibrationPath(), sa, EstimatorOptions{false});
+  ASSERT_TRUE(choice.estimator);
+  EXPECT_EQ(dynamic_cast<const SscnnEstimator&>(*choice.estimator).inferenceSymmetry(), "none");
+}
+
 TEST(EstimatorFactory, FallsBackToTheCentroidBaselineAndSaysWhy) {
   const SensorConfig sa = shipped("thesis_sa");
   EstimatorChoice primary = chooseEstimator(modelPath(), calibrationPath(), sa);

@@ -64,6 +64,10 @@ int runEval(int argc, char** argv) {
             {
                 {"data", "BAG", "dataset bag(s) of /sun_sensor/image + /sun_sensor/truth", "", true, true},
                 {"estimator", "KIND:FILE", "sscnn:MODEL or centroid:CALIB", "", true, false},
+                {"symmetry", "S",
+                 "SSCNN: 'model' (average over the mirror images its file names) or 'none' (the image alone; "
+                 "calibration_node's ~inference_symmetry)",
+                 "model", false, false},
                 {"csv", "FILE", "also write one CSV row per image", "", false, false},
                 {"screen", "",
                  "apply calibration_node's screens (hot-pixel removal, saturation, predicted sigma, field "
@@ -86,11 +90,17 @@ int runEval(int argc, char** argv) {
   } catch (const std::invalid_argument& e) {
     throw UsageError(std::string("dss eval: --spike-sigmas: ") + e.what());
   }
+  EstimatorOptions estimator_options;
+  try {
+    estimator_options.mirror_average = mirrorAverageFromName(args.get("symmetry"));
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(std::string("dss eval: --symmetry: ") + e.what());
+  }
   sparse::configureThreads(1, 1);  // per-image inference is fastest single-threaded (README)
   const DatasetBagReader reader(args.all("data"));
   std::unique_ptr<SunEstimator> estimator;
   try {
-    estimator = makeEstimator(args.get("estimator"));
+    estimator = makeEstimator(args.get("estimator"), nullptr, estimator_options);
   } catch (const std::invalid_argument& e) {
     throw UsageError(std::string("dss eval: --estimator: ") + e.what());
   }

@@ -20,23 +20,31 @@ std::unique_ptr<SunEstimator> makeCentroid(const std::string& path, const Sensor
 
 }  // namespace
 
-std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec, const SensorConfig* expected) {
+bool mirrorAverageFromName(const std::string& name) {
+  if (name == "model") return true;
+  if (name == "none") return false;
+  throw std::invalid_argument("inference symmetry must be 'model' (the model file's) or 'none' (the image alone), got '" +
+                              name + "'");
+}
+
+std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec, const SensorConfig* expected,
+                                            const EstimatorOptions& options) {
   const auto colon = spec.find(':');
   const std::string kind = spec.substr(0, colon), path = colon == std::string::npos ? "" : spec.substr(colon + 1);
   if (path.empty() || (kind != "centroid" && kind != "sscnn"))
     throw std::invalid_argument("estimator must be sscnn:MODEL or centroid:CALIB, got '" + spec + "'");
   if (kind == "centroid") return makeCentroid(path, expected);
-  return std::make_unique<SscnnEstimator>(path, expected);
+  return std::make_unique<SscnnEstimator>(path, expected, options.mirror_average);
 }
 
 EstimatorChoice chooseEstimator(const std::string& model_path, const std::string& calibration_path,
-                                const SensorConfig& sensor) {
+                                const SensorConfig& sensor, const EstimatorOptions& options) {
   EstimatorChoice choice;
   if (model_path.empty()) {
     choice.problem = "no model file given";
   } else {
     try {
-      choice.estimator = std::make_unique<SscnnEstimator>(model_path, &sensor);
+      choice.estimator = std::make_unique<SscnnEstimator>(model_path, &sensor, options.mirror_average);
       return choice;
     } catch (const std::exception& e) {
       choice.problem = e.what();

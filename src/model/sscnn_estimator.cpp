@@ -13,9 +13,10 @@ struct SscnnEstimator::Impl {
   InputEnvelope envelope;
 };
 
-SscnnEstimator::SscnnEstimator(const std::string& model_path, const SensorConfig* expected)
+SscnnEstimator::SscnnEstimator(const std::string& model_path, const SensorConfig* expected, bool mirror_average)
     : impl_(std::make_unique<Impl>()) {
   impl_->model = loadModel(model_path, expected);
+  if (!mirror_average) impl_->model.meta.inference_symmetry = InferenceSymmetry::kNone;
   impl_->sensor = parseSensorConfig(impl_->model.meta.sensor_yaml, model_path + " (sensor)");
   impl_->envelope = inputEnvelopeOf(impl_->model.meta);
 }
@@ -23,6 +24,10 @@ SscnnEstimator::SscnnEstimator(const std::string& model_path, const SensorConfig
 SscnnEstimator::~SscnnEstimator() = default;
 
 const SensorConfig& SscnnEstimator::sensor() const { return impl_->sensor; }
+
+std::string SscnnEstimator::inferenceSymmetry() const {
+  return inferenceSymmetryName(impl_->model.meta.inference_symmetry);
+}
 
 std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& images) {
   std::vector<SunEstimate> out(images.size());

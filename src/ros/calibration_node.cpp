@@ -13,6 +13,7 @@
 #include "digital_sun_sensor/common/statistics.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
+#include "digital_sun_sensor/model/sscnn_estimator.h"
 #include "digital_sun_sensor/ros/conversions.h"
 #include "digital_sun_sensor/ros/node_params.h"
 #include "digital_sun_sensor/ros/node_runner.h"
@@ -79,7 +80,16 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
   // the image source (README "Threads").
   sparse::configureThreads(std::max(1, pnh_.param("aten_threads", 1)), std::max(1, pnh_.param("blas_threads", 1)));
 
-  EstimatorChoice choice = chooseEstimator(model_path_, calibration_path_, sensor);
+  EstimatorOptions estimator_options;
+  const std::string symmetry_param = pnh_.param<std::string>("inference_symmetry", "model");
+  try {
+    estimator_options.mirror_average = mirrorAverageFromName(symmetry_param);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(std::string("~inference_symmetry: ") + e.what());
+  }
+  EstimatorChoice choice = chooseEstimator(model_path_, calibration_path_, sensor, estimator_options);
+  if (const auto* sscnn = dynamic_cast<const SscnnEstimator*>(choice.estimator.get()))
+    inference_symmetry_ = sscnn->inferenceSymmetry();
   if (choice.estimator) {
     source_ = choice.estimator->source();
     estimator_ = std::make_unique<ScreenedEstimator>(std::move(choice.estimator), screen);
@@ -93,7 +103,8 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
     ROS_WARN("calibration_node: SSCNN not used (%s); falling back to the centroid baseline from %s",
              estimator_problem_.c_str(), calibration_path_.c_str());
   } else {
-    ROS_INFO("calibration_node: SSCNN model %s for sensor %s%s", model_path_.c_str(), sensor_name_.c_str(),
+    ROS_INFO("calibration_node: SSCNN model %s for sensor %s (mirror images averaged: %s)%s", model_path_.c_str(),
+             sensor_name_.c_str(), inference_symmetry_.c_str(),
              calibration_path_.empty() ? "" : (", fallback calibration " + calibration_path_).c_str());
   }
 
@@ -265,6 +276,7 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("sensor", sensor_name_);
   stat.add("source", estimator_ ? source_ : "none");
   stat.add("model", model_path_.empty() ? "none" : model_path_);
+  stat.add("inference symmetry", inference_symmetry_);
   stat.add("calibration (fallback)", calibration_path_.empty() ? "none" : calibration_path_);
   stat.add("input rate [Hz]", input_hz);
   stat.add("images received", received_);

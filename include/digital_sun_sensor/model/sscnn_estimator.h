@@ -12,12 +12,17 @@ namespace dss {
 class SscnnEstimator : public SunEstimator {
  public:
   // Loads a model file (throws ModelError naming the problem); with
-  // `expected`, also checks that it was made for that sensor.
-  explicit SscnnEstimator(const std::string& model_path, const SensorConfig* expected = nullptr);
+  // `expected`, also checks that it was made for that sensor. Without
+  // `mirror_average`, the model's inference symmetry is set aside: each image
+  // is estimated alone (EstimatorOptions).
+  explicit SscnnEstimator(const std::string& model_path, const SensorConfig* expected = nullptr,
+                          bool mirror_average = true);
   ~SscnnEstimator() override;
 
   std::string source() const override { return "sscnn"; }
   const SensorConfig& sensor() const override;
+  // The mirror images averaged per image: "none", "flips" or "dihedral".
+  std::string inferenceSymmetry() const;
   std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
 
  private:

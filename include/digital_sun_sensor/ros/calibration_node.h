@@ -44,6 +44,7 @@ class CalibrationNode {
   ros::NodeHandle nh_, pnh_;
   std::unique_ptr<SunEstimator> estimator_;  // null when neither model nor calibration could be used
   std::string source_, estimator_problem_, model_path_, calibration_path_;
+  std::string inference_symmetry_ = "none";  // of the SSCNN in use
   bool is_fallback_ = false;
   std::string sensor_name_, default_frame_id_, sun_frame_id_;
   bool publish_tf_ = true;
