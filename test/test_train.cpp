@@ -4,6 +4,7 @@
 // angle correction removes a smooth bias on held-out images; the sigma
 // calibration of a mirror-averaged model covers as it reports.
 #include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
 
 #include <cmath>
 #include <cstdio>
@@ -367,6 +368,27 @@ TEST(SigmaCalibration, DihedralModelCoversAsReported) {
     EXPECT_NEAR(measureCoverage(za).within[k], c.alpha_after.within[k], 1e-9) << k;
     EXPECT_NEAR(measureCoverage(zb).within[k], c.beta_after.within[k], 1e-9) << k;
   }
+}
+
+// A constant sigma rescaled by a later calibration is still recorded as the
+// constant it now is (the shipped models got a second calibration, which
+// recorded "head").
+TEST(SigmaCalibration, RescaledConstantStaysConstant) {
+  Model model = createModel(tinySensor(), "resnet10_w16", 5);
+  model.net->eval();
+  EXPECT_FALSE(model.constantSigma());
+  model.setConstantSigma(1e-3, 2e-3);
+  ASSERT_TRUE(model.constantSigma());
+  EXPECT_NEAR((*model.constantSigma())[1], 2e-3, 1e-9);
+  const SigmaCalibration c = calibrateSigma(model, tinySet(), 160);
+  EXPECT_TRUE(c.constant);
+  const Prediction p = model.predictSamples({&tinySet().samples()[0]})[0];
+  EXPECT_NEAR(std::sqrt(p.alpha_variance_rad2), c.constant_sigma_alpha_rad, 1e-6 * c.constant_sigma_alpha_rad);
+  EXPECT_NEAR(std::sqrt(p.beta_variance_rad2), c.constant_sigma_beta_rad, 1e-6 * c.constant_sigma_beta_rad);
+  const YAML::Node metrics = YAML::Load(model.meta.metrics_yaml);
+  EXPECT_EQ(metrics["sigma_mode"].as<std::string>(), "constant");
+  EXPECT_DOUBLE_EQ(metrics["sigma_constant_alpha_rad"].as<double>(), c.constant_sigma_alpha_rad);
+  EXPECT_DOUBLE_EQ(metrics["sigma_constant_beta_rad"].as<double>(), c.constant_sigma_beta_rad);
 }
 
 }  // namespace

@@ -23,8 +23,8 @@ std::unique_ptr<SunEstimator> makeCentroid(const std::string& path, const Sensor
 bool mirrorAverageFromName(const std::string& name) {
   if (name == "model") return true;
   if (name == "none") return false;
-  throw std::invalid_argument("inference symmetry must be 'model' (the model file's) or 'none' (the image alone), got '" +
-                              name + "'");
+  throw std::invalid_argument(
+      "inference symmetry must be 'model' (the model file's) or 'none' (the image alone), got '" + name + "'");
 }
 
 std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec, const SensorConfig* expected,

@@ -339,4 +339,15 @@ void Model::setConstantSigma(double alpha_sigma_rad, double beta_sigma_rad) {
   }
 }
 
+std::optional<std::array<double, 2>> Model::constantSigma() const {
+  torch::Tensor weight, bias;
+  for (const auto& p : net->named_parameters()) {
+    if (p.key() == "variance.weight") weight = p.value();
+    if (p.key() == "variance.bias") bias = p.value();
+  }
+  if (!weight.defined() || !bias.defined() || weight.count_nonzero().item<std::int64_t>() != 0) return std::nullopt;
+  const double s = meta.angle_scale_rad;
+  return std::array<double, 2>{s * std::exp(0.5 * bias[0].item<double>()), s * std::exp(0.5 * bias[1].item<double>())};
+}
+
 }  // namespace dss

@@ -65,13 +65,23 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
     metrics["sigma_constant_beta_rad"] = sigma_beta;
   } else {
     model.scaleSigma(c.scale_alpha, c.scale_beta);
-    metrics["sigma_mode"] = "head";
-    // The factors since training: a recalibration multiplies into the record.
-    auto total = [&](const char* key, double factor) {
-      return metrics[key] ? metrics[key].as<double>() * factor : factor;
-    };
-    metrics["sigma_scale_alpha"] = total("sigma_scale_alpha", c.scale_alpha);
-    metrics["sigma_scale_beta"] = total("sigma_scale_beta", c.scale_beta);
+    if (const auto sigma = model.constantSigma()) {
+      // A constant from an earlier calibration, scaled: still a constant.
+      c.constant = true;
+      c.constant_sigma_alpha_rad = (*sigma)[0];
+      c.constant_sigma_beta_rad = (*sigma)[1];
+      metrics["sigma_mode"] = "constant";
+      metrics["sigma_constant_alpha_rad"] = c.constant_sigma_alpha_rad;
+      metrics["sigma_constant_beta_rad"] = c.constant_sigma_beta_rad;
+    } else {
+      metrics["sigma_mode"] = "head";
+      // The factors since training: a recalibration multiplies into the record.
+      auto total = [&](const char* key, double factor) {
+        return metrics[key] ? metrics[key].as<double>() * factor : factor;
+      };
+      metrics["sigma_scale_alpha"] = total("sigma_scale_alpha", c.scale_alpha);
+      metrics["sigma_scale_beta"] = total("sigma_scale_beta", c.scale_beta);
+    }
   }
   metrics["sigma_calibration_samples"] = c.samples;
   model.meta.metrics_yaml = YAML::Dump(metrics);

@@ -6,8 +6,10 @@
 // archive of every parameter and buffer by name), u64 FNV-1a of all before.
 #pragma once
 
+#include <array>
 #include <memory>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -46,6 +48,9 @@ struct Model {
   // Makes the predicted standard deviations these constants (radians) for
   // every image (train/sigma_calibration, when the head's shape is uninformative).
   void setConstantSigma(double alpha_sigma_rad, double beta_sigma_rad);
+  // Those constants (radians) when the variance head's weights are all zero,
+  // as setConstantSigma (and any scaling after it) leaves them; else nullopt.
+  std::optional<std::array<double, 2>> constantSigma() const;
 };
 
 // A freshly initialised model for a sensor; seeds torch's generator with `seed`.
