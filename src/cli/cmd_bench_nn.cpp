@@ -27,8 +27,7 @@ std::vector<OptionSpec> nnBenchOptions(const std::string& blas_threads) {
   auto specs = sensorOptions();
   specs.insert(specs.end(),
                {
-                   {"arch", "A", "architecture (resnet34, resnet18, resnet18_w32, resnet10_w16)", defaultArchName(),
-                    false, false},
+                   {"arch", "A", "architecture (" + archPresetList() + ")", defaultArchName(), false, false},
                    {"model", "FILE", "time this model file instead of a fresh --arch network", "", false, false},
                    {"seed", "S", "seed of the simulated images and the weights", "1", false, false},
                    {"aten-threads", "N", "ATen (OpenMP) threads", "1", false, false},

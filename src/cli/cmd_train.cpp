@@ -31,9 +31,8 @@ int runTrain(int argc, char** argv) {
           {"sensor", "CFG", "sensor config (default: the one recorded in the first bag)", "", false, false},
           {"set", "KEY=VALUE", "override a key of --sensor", "", false, true},
           {"arch", "A",
-           "architecture (resnet34, resnet18, resnet18_w32, resnet10_w16; default: the --init model's, else " +
-               defaultArchName() + ")",
-           "", false, false},
+           "architecture (" + archPresetList() + "; default: the --init model's, else " + defaultArchName() + ")", "",
+           false, false},
           {"centroid-weighting", "W",
            "site weights of the centroid branch: learned (equal at the start) or value (the intensity-weighted "
            "centroid at the start); default: the --init model's, else learned",

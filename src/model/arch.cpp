@@ -54,21 +54,32 @@ ArchSpec archPreset(const std::string& name, int num_classes) {
     a.stem_width = 32;
     a.widths = {32, 64, 128, 256};
     a.head_hidden = {128, 128};
+  } else if (name == "resnet18_w16") {
+    a.blocks = {2, 2, 2, 2};
+    a.stem_width = 16;
+    a.widths = {16, 32, 64, 128};
+    a.head_hidden = {64, 64};
   } else if (name == "resnet10_w16") {
     a.blocks = {1, 1, 1, 1};
     a.stem_width = 16;
     a.widths = {16, 32, 64, 128};
     a.head_hidden = {64, 64};
   } else {
-    std::string names;
-    for (const auto& n : archPresetNames()) names += (names.empty() ? "" : ", ") + n;
-    throw std::invalid_argument("unknown architecture '" + name + "' (available: " + names + ")");
+    throw std::invalid_argument("unknown architecture '" + name + "' (available: " + archPresetList() + ")");
   }
   a.validate();
   return a;
 }
 
-std::vector<std::string> archPresetNames() { return {"resnet34", "resnet18", "resnet18_w32", "resnet10_w16"}; }
+std::vector<std::string> archPresetNames() {
+  return {"resnet34", "resnet18", "resnet18_w32", "resnet18_w16", "resnet10_w16"};
+}
+
+std::string archPresetList() {
+  std::string names;
+  for (const auto& n : archPresetNames()) names += (names.empty() ? "" : ", ") + n;
+  return names;
+}
 
 std::string defaultArchName() { return "resnet18_w32"; }
 

@@ -79,6 +79,8 @@ struct ArchSpec {
 // "resnet34" (published layout), "resnet18", "resnet18_w32", "resnet10_w16".
 ArchSpec archPreset(const std::string& name, int num_classes);
 std::vector<std::string> archPresetNames();
+// The same, comma-separated, for help texts and errors.
+std::string archPresetList();
 // The architecture a model gets when none is named (chosen by dss bench infer/train).
 std::string defaultArchName();
 
