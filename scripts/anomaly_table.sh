@@ -5,11 +5,14 @@
 # on the same bag with calibration_node's screens (--screen), and compared on the
 # images both answer (per-image CSVs beside the bags). Prints one markdown row per
 # anomaly type.
-#   scripts/anomaly_table.sh [SENSOR]   (default: thesis_sa; bags in .ws/models_data, reused)
+#   scripts/anomaly_table.sh [SENSOR [TYPE...]]   (default: thesis_sa, every type; bags in .ws/models_data,
+#   reused; TYPE: stray_light ghost debris hot_pixels as_built mix, each always with its own seed)
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
 sensor="${1:-thesis_sa}"
+shift || true
+types=" ${*:-stray_light ghost debris hot_pixels as_built mix} "
 mkdir -p "$DATA"
 echo "| anomaly | SSCNN mean α / β (deg) | max α / β | valid | centroid mean α / β (deg) | max α / β | valid | on the images both answer: SSCNN / centroid mean α / β (deg) |"
 echo "|---|---|---|---|---|---|---|---|"
@@ -17,6 +20,7 @@ seed=600
 for spec in stray_light=1 ghost=1 debris=1 hot_pixels=30 as_built=1 mix; do
   seed=$((seed + 1))
   name="${spec%%=*}" bag="$DATA/anom_${spec%%=*}.bag"
+  [[ "$types" == *" $name "* ]] || continue
   [ "$sensor" = thesis_sa ] || bag="$DATA/anom_${sensor}_${spec%%=*}.bag"
   [ -f "$bag" ] || "$DSS" generate --sensor "$ROOT/config/sensors/$sensor.yaml" --anomalies "$spec" --instances 20 \
     --count 2000 --seed "$seed" --out "$bag" 2>/dev/null

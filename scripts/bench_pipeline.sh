@@ -3,7 +3,9 @@
 # case, launch/bench_pipeline.launch publishes pre-rendered images at the rate
 # and prints one JSON line (rate in/out, latency p50/p99 from image stamp to
 # /sun_sensor/angles, drops, estimator memory). Cases run one after another.
-#   scripts/bench_pipeline.sh [DURATION_S] [CASE...]   CASE = nodelet@100 (default: nodelet@100 node@100 nodelet@1000 node@1000)
+#   scripts/bench_pipeline.sh [DURATION_S] [CASE...]   CASE = MODE@RATE[/none], e.g. nodelet@100, node@1000/none
+#   (/none: calibration_node's ~inference_symmetry none, the image alone; default cases:
+#   nodelet@100 node@100 nodelet@1000 node@1000)
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 WS="${DSS_WS:-$ROOT/.ws}"
@@ -19,13 +21,16 @@ cases=("${@:-nodelet@100 node@100 nodelet@1000 node@1000}")
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 for c in ${cases[*]}; do
-  mode="${c%@*}" rate="${c#*@}"
+  symmetry=model
+  [[ "$c" == */none ]] && symmetry=none
+  spec="${c%/none}"
+  mode="${spec%@*}" rate="${spec#*@}"
   case "$mode" in nodelet) nodelets=true ;; node) nodelets=false ;; *) echo "unknown mode '$mode' in '$c'" >&2; exit 2 ;; esac
   if ! roslaunch digital_sun_sensor bench_pipeline.launch rate:="$rate" duration:="$duration" use_nodelets:="$nodelets" \
-      output:="$out/$c.json" >"$out/$c.log" 2>&1 || [ ! -s "$out/$c.json" ]; then
-    tail -n 20 "$out/$c.log" >&2
+      inference_symmetry:="$symmetry" output:="$out/$mode-$rate-$symmetry.json" >"$out/$mode-$rate-$symmetry.log" 2>&1 || [ ! -s "$out/$mode-$rate-$symmetry.json" ]; then
+    tail -n 20 "$out/$mode-$rate-$symmetry.log" >&2
     echo "bench case $c failed" >&2
     exit 1
   fi
-  cat "$out/$c.json"
+  cat "$out/$mode-$rate-$symmetry.json"
 done
