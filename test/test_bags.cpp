@@ -138,11 +138,11 @@ TEST(Generate, BadInputGetsClearErrors) {
   // So does eval a bad spike threshold for its screen, or a symmetry it does not choose.
   r = run("eval --estimator sscnn:models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --screen --spike-sigmas -1");
   EXPECT_EQ(r.code, 2) << r.output;
+  EXPECT_NE(r.output.find("--spike-sigmas"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   r = run("eval --estimator sscnn:models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --symmetry dihedral");
   EXPECT_EQ(r.code, 2) << r.output;
   EXPECT_NE(r.output.find("--symmetry: inference symmetry must be 'model'"), std::string::npos) << r.output;
-  EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("--spike-sigmas"), std::string::npos) << r.output;
   EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   r = run("--help");
   EXPECT_EQ(r.code, 0);

@@ -102,10 +102,13 @@ TEST(Pipeline, EstimatesMatchTruthVectorAndTf) {
     EXPECT_GT(e->covariance[0], 0.0);
     EXPECT_GT(e->covariance[3], 0.0);
 
-    // The sun vector: unit, and the same direction as the angles.
+    // The sun vector: unit, and the same direction as the angles. Required
+    // between the first and the last vector received: before, that
+    // subscription was still connecting; after, a vector may still be in flight.
     const auto v = vectors.find(stamp);
     if (v == vectors.end()) {
-      ADD_FAILURE() << "no sun_vector for a valid estimate";
+      if (!vectors.empty() && stamp > vectors.begin()->first && stamp < vectors.rbegin()->first)
+        ADD_FAILURE() << "no sun_vector for a valid estimate";
       continue;
     }
     const Eigen::Vector3d s(v->second->vector.x, v->second->vector.y, v->second->vector.z);
