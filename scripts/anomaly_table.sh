@@ -40,7 +40,7 @@ rows = [{r["index"]: r for r in csv.DictReader(open(f))} for f in sys.argv[4:6]]
 both = [k for k in rows[0] if rows[0][k]["valid"] == "1" and rows[1].get(k, {}).get("valid") == "1"]
 def mean(r, axis):
     return sum(abs(float(r[k][axis + "_error_deg"])) for k in both) / max(1, len(both))
-common = "%.5f / %.5f, %.5f / %.5f (%d)" % (mean(rows[0], "alpha"), mean(rows[0], "beta"), mean(rows[1], "alpha"),
+common = "%.6f / %.6f, %.6f / %.6f (%d)" % (mean(rows[0], "alpha"), mean(rows[0], "beta"), mean(rows[1], "alpha"),
                                            mean(rows[1], "beta"), len(both))
 print("| %s | %s | %s | %s |" % (name, cells(s), cells(c), common))
 PY

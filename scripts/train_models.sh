@@ -16,25 +16,37 @@ mkdir -p "$DATA" "$ROOT/models"
 
 # sensor, training images, training seed, test seed, epochs, architecture, sigma-calibration seed,
 # centroid weighting, angle correction (maximum degree fitted on the sigma bag; keep: none fitted),
-# inference symmetry (dihedral: estimates averaged over the 8 mirror images; keep: none)
+# inference symmetry (dihedral: estimates averaged over the 8 mirror images; keep: none),
+# anomaly bags added to the training and sigma bags (none, or ANOMALIES:TRAIN_COUNT:TRAIN_SEED:SIGMA_COUNT:SIGMA_SEED,
+# ANOMALIES as for dss generate --anomalies)
 recipe() {
   case "$1" in
-    thesis_sa) echo "60000 501 502 45 resnet18_w32 503 learned keep dihedral" ;;
-    thesis_ma) echo "60000 511 512 22 resnet10_w16 513 learned keep dihedral" ;;
-    wide_ma) echo "24000 521 522 7 resnet10_w16 523 value 16 keep" ;;
-    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep dihedral" ;;
+    thesis_sa) echo "60000 501 502 45 resnet18_w32 503 learned keep dihedral none" ;;
+    thesis_ma) echo "60000 511 512 20 resnet10_w16 513 learned keep dihedral stray_light=1:20000:561:1500:563" ;;
+    wide_ma) echo "24000 521 522 7 resnet10_w16 523 value 16 keep none" ;;
+    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep dihedral none" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
 
 for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
   for s in $sensor; do
-    read -r count train_seed test_seed epochs arch sigma_seed weighting correction symmetry <<<"$(recipe "$s")"
+    read -r count train_seed test_seed epochs arch sigma_seed weighting correction symmetry anomaly \
+      <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
     sigma="$DATA/$s.sigma.bag"
     [ -f "$train" ] || "$DSS" generate --sensor "$cfg" --count "$count" --seed "$train_seed" --out "$train"
     [ -f "$test" ] || "$DSS" generate --sensor "$cfg" --count 10000 --seed "$test_seed" --out "$test"
     [ -f "$sigma" ] || "$DSS" generate --sensor "$cfg" --count 5000 --seed "$sigma_seed" --out "$sigma"
+    if [ "$anomaly" != none ]; then
+      IFS=: read -r spec anomaly_count anomaly_seed anomaly_sigma_count anomaly_sigma_seed <<<"$anomaly"
+      extra="$DATA/$s.${spec%%=*}.train.bag" extra_sigma="$DATA/$s.${spec%%=*}.sigma.bag"
+      [ -f "$extra" ] || "$DSS" generate --sensor "$cfg" --anomalies "$spec" --count "$anomaly_count" \
+        --seed "$anomaly_seed" --out "$extra"
+      [ -f "$extra_sigma" ] || "$DSS" generate --sensor "$cfg" --anomalies "$spec" --count "$anomaly_sigma_count" \
+        --seed "$anomaly_sigma_seed" --out "$extra_sigma"
+      train="$train $extra" sigma="$sigma $extra_sigma"
+    fi
     train_and_evaluate "$s" "$train" "$test" "$sigma" "$epochs" "$arch" "$correction" "$symmetry" \
       --centroid-weighting "$weighting"
   done

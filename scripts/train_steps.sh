@@ -1,35 +1,42 @@
 # Sourced by train_models.sh and train_published.sh (after dss_env.sh, with
 # DATA set): the steps every shipped model goes through once its bags exist.
-#   train_and_evaluate NAME TRAIN_BAG TEST_BAG SIGMA_BAG EPOCHS ARCH CORRECTION SYMMETRY [DSS TRAIN OPTION...]
-# Trains models/NAME.dssmodel unless it exists (resuming DATA/NAME.ckpt when
-# present), fits its angle correction (calibrate-sigma --correction-degree
-# CORRECTION: a maximum degree, or keep) and its sigma on the sigma bag; with
-# a SYMMETRY other than keep (flips, dihedral), sets the model's inference
-# symmetry and refits its sigma on the same bag; evaluates it on the test
-# bag, then calibrates the centroid baseline on the first 1000 training images
+#   train_and_evaluate NAME TRAIN_BAGS TEST_BAG SIGMA_BAGS EPOCHS ARCH CORRECTION SYMMETRY [DSS TRAIN OPTION...]
+# TRAIN_BAGS and SIGMA_BAGS: one bag, or several separated by spaces (e.g. a
+# nominal bag and one with an anomaly). Trains models/NAME.dssmodel unless it
+# exists (resuming DATA/NAME.ckpt when present), fits its angle correction
+# (calibrate-sigma --correction-degree CORRECTION: a maximum degree, or keep)
+# and its sigma on all images of the sigma bags; with a SYMMETRY other than
+# keep (flips, dihedral), sets the model's inference symmetry and refits its
+# sigma on the same bags; evaluates it on the test bag, then calibrates the
+# centroid baseline on the first 1000 images of the first training bag
 # (models/NAME.calib.yaml) and evaluates it on the same test bag. Results:
 # DATA/NAME.*.json and .csv.
 train_and_evaluate() {
-  local name="$1" train="$2" test="$3" sigma="$4" epochs="$5" arch="$6" correction="$7" symmetry="$8"
+  local name="$1" test="$3" epochs="$5" arch="$6" correction="$7" symmetry="$8"
+  local -a train sigma train_data=() sigma_data=()
+  read -r -a train <<<"$2"
+  read -r -a sigma <<<"$4"
   shift 8
+  for bag in "${train[@]}"; do train_data+=(--data "$bag"); done
+  for bag in "${sigma[@]}"; do sigma_data+=(--data "$bag"); done
   local model="$ROOT/models/$name.dssmodel" calib="$ROOT/models/$name.calib.yaml" ckpt="$DATA/$name.ckpt"
   if [ ! -f "$model" ]; then
     local resume=()
     [ -f "$ckpt" ] && resume=(--resume "$ckpt")
-    "$DSS" train --data "$train" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" "$@" \
+    "$DSS" train "${train_data[@]}" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" "$@" \
       --lr 5e-4 --seed 1 "${resume[@]}" | tee "$DATA/$name.train.json"
     # smooth angle correction, sigma (level, or a constant per axis) and the input envelope from fresh images
-    "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" --correction-degree "$correction" \
-      | tee "$DATA/$name.sigma.json"
+    "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
+      --correction-degree "$correction" | tee "$DATA/$name.sigma.json"
     # Estimates averaged over the sensor's mirror images, and their sigma. (A second step because the shipped
     # models got it after their first calibration; in one step the sigma could come out otherwise.)
     if [ "$symmetry" != keep ]; then
-      "$DSS" calibrate-sigma --model "$model" --data "$sigma" --out "$model" --symmetry "$symmetry" \
-        | tee "$DATA/$name.symmetry.json"
+      "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
+        --symmetry "$symmetry" | tee "$DATA/$name.symmetry.json"
     fi
   fi
   "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$name.sscnn.csv" | tee "$DATA/$name.sscnn.json"
-  "$DSS" calibrate --data "$train" --max-images 1000 --out "$calib" > "$DATA/$name.calibrate.json"
+  "$DSS" calibrate --data "${train[0]}" --max-images 1000 --out "$calib" > "$DATA/$name.calibrate.json"
   "$DSS" eval --data "$test" --estimator "centroid:$calib" --csv "$DATA/$name.centroid.csv" \
     | tee "$DATA/$name.centroid.json"
 }

@@ -174,6 +174,7 @@ TEST(Train, InitModelGivesTheStartingWeights) {
   options.init_model = init_path;
   std::atomic<bool> stop{true};  // no step: the weights stay the init model's
   Trainer trainer(tinySensor(), train, validation, options);
+  EXPECT_EQ(trainer.archName(), "resnet10_w16");  // what `dss train` reports
   trainer.run({}, stop);
   trainer.saveModel(out_path, "test");
   const Model init = loadModel(init_path), out = loadModel(out_path);

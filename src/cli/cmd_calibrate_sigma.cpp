@@ -33,7 +33,7 @@ int runCalibrateSigma(int argc, char** argv) {
           {"model", "MODEL", "model file to calibrate", "", true, false},
           {"data", "BAG", "labelled dataset bag(s) of the model's sensor", "", true, true},
           {"out", "MODEL", "model file to write (may be --model)", "", true, false},
-          {"max-images", "N", "use at most N images", "5000", false, false},
+          {"max-images", "N", "use at most N images, over all bags (0: all)", "5000", false, false},
           {"correction-degree", "D",
            "angle correction: 'keep' the model's, 'none', or refit one of degree at most D (0.." +
                std::to_string(AngleCorrection::kMaxDegree) + ")",

@@ -121,7 +121,7 @@ int runTrain(int argc, char** argv) {
               << "; continue with: dss train ... --resume " << options.checkpoint_path << "\n";
   }
   const auto& p = result.last;
-  std::cout << "{\"command\": \"train\", \"sensor\": \"" << data.sensor.name << "\", \"arch\": \"" << options.arch
+  std::cout << "{\"command\": \"train\", \"sensor\": \"" << data.sensor.name << "\", \"arch\": \"" << trainer.archName()
             << "\", \"stop\": \"" << toString(result.stop)
             << "\", \"model\": " << (complete ? "\"" + args.get("out") + "\"" : "null") << ", \"checkpoint\": \""
             << options.checkpoint_path << "\", \"epochs_completed\": " << p.epoch + (p.epoch_end ? 1 : 0)

@@ -101,11 +101,12 @@ void setLattice(const SensorConfig& config, ArchSpec& arch) {
   arch.lattice_pitch_y = 2.0 * pitch_y_um / pixel_um / config.detector.height_px;
   arch.lattice_columns = static_cast<int>(columns.size());
   arch.lattice_rows = static_cast<int>(rows.size());
-  // The code compares spot sizes, and the phase reads spots, only where the
-  // edge does not cut them: the spot radius (largest aperture, as a circle),
-  // normalized. Such masks are also wide fields, whose spots the edge cuts in
-  // most images.
-  arch.lattice_whole_spot_phase = arch.lattice_resolve == LatticeResolve::kCode;
+  // The phase reads, and the code compares the sizes of, only the spots the
+  // edge does not cut: a cut spot's centroid is pulled inward by an amount the
+  // head cannot see, more so where stray light widens the lit spot (thesis_ma).
+  // For the code, the spot radius is the largest aperture's (as a circle,
+  // normalized); thresholded masks keep the default, their lit core's scale.
+  arch.lattice_whole_spot_phase = true;
   if (arch.lattice_resolve == LatticeResolve::kCode)
     arch.lattice_spot_radius = std::sqrt(max_area_um2 / M_PI) / pixel_um /
                                (0.5 * std::min(config.detector.width_px, config.detector.height_px));

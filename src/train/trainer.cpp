@@ -435,6 +435,8 @@ Trainer::~Trainer() = default;
 void Trainer::resume(const std::string& checkpoint_path) { impl_->resume(checkpoint_path); }
 std::int64_t Trainer::stepsPerEpoch() const { return impl_->stepsPerEpoch(); }
 
+const std::string& Trainer::archName() const { return impl_->options.arch; }
+
 TrainProgress Trainer::measureValidation() {
   TrainProgress p;
   impl_->measure(p);

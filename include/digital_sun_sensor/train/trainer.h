@@ -109,6 +109,8 @@ class Trainer {
   TrainProgress measureValidation();
 
   std::int64_t stepsPerEpoch() const;
+  // The architecture trained: the requested one, or the --init model's or the default when none was.
+  const std::string& archName() const;
   // Every weight as one flat vector (tests compare runs).
   std::vector<float> flatWeights() const;
 
