@@ -106,7 +106,7 @@ TEST(LatticeHead, ShiftStaysContinuousWhileSpotsLeaveTheDetector) {
 }
 
 // A column of spots cut by the detector edge: its centroids are pulled inward,
-// which biased the phase of all spots by a fraction of a pixel (0.01 deg here);
+// which biased the phase of all spots by a fraction of a pixel (up to 0.008 deg);
 // the phase of the whole spots (every lattice head's default) keeps the
 // untrained head on the line the uncut images give.
 TEST(LatticeHead, PhaseOfWholeSpotsIgnoresSpotsCutByTheEdge) {
