@@ -26,11 +26,12 @@ for c in ${cases[*]}; do
   spec="${c%/none}"
   mode="${spec%@*}" rate="${spec#*@}"
   case "$mode" in nodelet) nodelets=true ;; node) nodelets=false ;; *) echo "unknown mode '$mode' in '$c'" >&2; exit 2 ;; esac
+  result="$out/$mode-$rate-$symmetry"
   if ! roslaunch digital_sun_sensor bench_pipeline.launch rate:="$rate" duration:="$duration" use_nodelets:="$nodelets" \
-      inference_symmetry:="$symmetry" output:="$out/$mode-$rate-$symmetry.json" >"$out/$mode-$rate-$symmetry.log" 2>&1 || [ ! -s "$out/$mode-$rate-$symmetry.json" ]; then
-    tail -n 20 "$out/$mode-$rate-$symmetry.log" >&2
+      inference_symmetry:="$symmetry" output:="$result.json" >"$result.log" 2>&1 || [ ! -s "$result.json" ]; then
+    tail -n 20 "$result.log" >&2
     echo "bench case $c failed" >&2
     exit 1
   fi
-  cat "$out/$mode-$rate-$symmetry.json"
+  cat "$result.json"
 done

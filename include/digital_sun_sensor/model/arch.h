@@ -76,7 +76,7 @@ struct ArchSpec {
   void validate() const;
 };
 
-// "resnet34" (published layout), "resnet18", "resnet18_w32", "resnet10_w16".
+// "resnet34" (published layout), "resnet18", "resnet18_w32", "resnet18_w16", "resnet10_w16".
 ArchSpec archPreset(const std::string& name, int num_classes);
 std::vector<std::string> archPresetNames();
 // The same, comma-separated, for help texts and errors.
