@@ -3,6 +3,7 @@
 // factory with its centroid fallback, and the uncertainty-coverage arithmetic.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <opencv2/imgproc.hpp>
@@ -293,6 +294,45 @@ TEST(Uncertainty, CoverageAndScaleOfGaussianErrors) {
   EXPECT_NEAR(sigmaScaleForCoverage(pessimistic), 0.25, 0.01);
   EXPECT_EQ(measureCoverage({{1.0, 0.0}}).within[2], 0.0);  // no sigma: outside
   EXPECT_EQ(sigmaScaleForCoverage({}), 1.0);
+}
+
+// Errors whose spread falls as the square root of the lit-site count: the
+// fitted law finds the exponent and covers every quarter of the counts, where
+// one constant sigma over-covers the many-site images and under-covers the
+// few-site ones; with a spread that does not follow the count, the law stays
+// (nearly) constant.
+TEST(Uncertainty, SiteSigmaLawFollowsTheLitSiteCount) {
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::uniform_int_distribution<int> count(50, 800);
+  std::vector<SitedError> following, flat;
+  for (int i = 0; i < 8000; ++i) {
+    const int n = count(rng);
+    following.push_back({1e-5 * std::sqrt(200.0 / n) * normal(rng), n});
+    flat.push_back({1e-5 * normal(rng), n});
+  }
+  const SiteSigmaLaw law = fitSiteSigmaLaw({following});
+  EXPECT_NEAR(law.exponent, 0.5, 0.1);
+  EXPECT_NEAR(law.reference_sites, 425.0, 25.0);  // the median count
+  EXPECT_NEAR(law.factor(4.0 * law.reference_sites), std::pow(4.0, -law.exponent), 1e-12);
+  auto quarterCoverage = [&](const SiteSigmaLaw& l) {
+    std::vector<ErrorAndSigma> z;
+    for (const auto& s : following) z.push_back({s.error_rad, l.factor(s.sites)});
+    const double scale = sigmaScaleForCoverage(z);
+    std::array<std::vector<ErrorAndSigma>, 2> few_many;  // below 150 and above 650 lit sites
+    for (std::size_t k = 0; k < z.size(); ++k)
+      if (following[k].sites < 150 || following[k].sites > 650)
+        few_many[following[k].sites > 650].push_back({z[k].error_rad, z[k].sigma_rad * scale});
+    return std::array<double, 2>{measureCoverage(few_many[0]).within[0], measureCoverage(few_many[1]).within[0]};
+  };
+  const auto fitted = quarterCoverage(law), constant = quarterCoverage({});
+  EXPECT_NEAR(fitted[0], 0.6827, 0.04);
+  EXPECT_NEAR(fitted[1], 0.6827, 0.04);
+  EXPECT_LT(constant[0], 0.55);  // few sites: larger errors than one sigma says
+  EXPECT_GT(constant[1], 0.80);
+  EXPECT_LE(std::abs(fitSiteSigmaLaw({flat}).exponent), 0.1);
+  EXPECT_FALSE(fitSiteSigmaLaw({{{1e-5, 100}}}).active());  // too few samples
+  EXPECT_EQ(SiteSigmaLaw{}.factor(10.0), 1.0);
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <fstream>
 #include <opencv2/core.hpp>
+#include <set>
 
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
@@ -127,6 +128,39 @@ TEST(Sscnn, ConstantSigmaIsPredictedForEveryImage) {
     EXPECT_NEAR(std::sqrt(p.beta_variance_rad2), 2.6e-5, 1e-10);
   }
   EXPECT_THROW(m.setConstantSigma(0.0, 1e-5), std::invalid_argument);
+}
+
+// With a lit-site law, each image's constant sigma is scaled by
+// (lit sites / reference)^-exponent; the law survives the model file, and a
+// bad one is refused by name.
+TEST(Sscnn, SiteSigmaLawScalesTheConstantPerImage) {
+  const SensorConfig c = shipped("thesis_sa");
+  Model m = createModel(c, "resnet10_w16", 4);
+  m.net->eval();
+  m.setConstantSigma(1.3e-5, 2.6e-5);
+  m.meta.sigma_site_law = {0.5, 100.0};
+  const Model loaded = deserializeModel(serializeModel(m), "law", &c);
+  EXPECT_EQ(loaded.meta.sigma_site_law.exponent, 0.5);
+  EXPECT_EQ(loaded.meta.sigma_site_law.reference_sites, 100.0);
+  std::set<int> counts;
+  for (const Prediction& p : loaded.predict(imageList())) {
+    ASSERT_GT(p.active_sites, 0);
+    counts.insert(p.active_sites);
+    const double factor = std::sqrt(100.0 / p.active_sites);
+    EXPECT_NEAR(std::sqrt(p.alpha_variance_rad2), 1.3e-5 * factor, 1e-10 * factor);
+    EXPECT_NEAR(std::sqrt(p.beta_variance_rad2), 2.6e-5 * factor, 1e-10 * factor);
+  }
+  EXPECT_GT(counts.size(), 1u);  // the images differ, so the sigmas do
+  std::string yaml = metadataToYaml(m.meta);
+  const std::size_t at = yaml.find("reference_sites: 100");
+  ASSERT_NE(at, std::string::npos);
+  yaml.replace(at, 20, "reference_sites: -1");
+  try {
+    metadataFromYaml(yaml, "bad law");
+    ADD_FAILURE() << "a negative reference was accepted";
+  } catch (const ModelError& e) {
+    EXPECT_NE(std::string(e.what()).find("sigma_site_law"), std::string::npos) << e.what();
+  }
 }
 
 // Untrained, the centroid branch is the plain centre of the lit sites

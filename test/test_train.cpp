@@ -384,10 +384,13 @@ TEST(SigmaCalibration, RescaledConstantStaysConstant) {
   const SigmaCalibration c = calibrateSigma(model, tinySet(), 160);
   EXPECT_TRUE(c.constant);
   const Prediction p = model.predictSamples({&tinySet().samples()[0]})[0];
-  EXPECT_NEAR(std::sqrt(p.alpha_variance_rad2), c.constant_sigma_alpha_rad, 1e-6 * c.constant_sigma_alpha_rad);
-  EXPECT_NEAR(std::sqrt(p.beta_variance_rad2), c.constant_sigma_beta_rad, 1e-6 * c.constant_sigma_beta_rad);
+  const double factor = c.site_law.factor(p.active_sites);  // 1 unless the lit-site law was fitted
+  EXPECT_NEAR(std::sqrt(p.alpha_variance_rad2), c.constant_sigma_alpha_rad * factor,
+              1e-6 * c.constant_sigma_alpha_rad * factor);
+  EXPECT_NEAR(std::sqrt(p.beta_variance_rad2), c.constant_sigma_beta_rad * factor,
+              1e-6 * c.constant_sigma_beta_rad * factor);
   const YAML::Node metrics = YAML::Load(model.meta.metrics_yaml);
-  EXPECT_EQ(metrics["sigma_mode"].as<std::string>(), "constant");
+  EXPECT_EQ(metrics["sigma_mode"].as<std::string>(), c.site_law.active() ? "lit_sites" : "constant");
   EXPECT_DOUBLE_EQ(metrics["sigma_constant_alpha_rad"].as<double>(), c.constant_sigma_alpha_rad);
   EXPECT_DOUBLE_EQ(metrics["sigma_constant_beta_rad"].as<double>(), c.constant_sigma_beta_rad);
 }

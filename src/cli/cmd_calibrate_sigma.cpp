@@ -25,7 +25,8 @@ int runCalibrateSigma(int argc, char** argv) {
       "the degree chosen by two-fold cross-validation on these images), then scales its predicted sigma per axis so "
       "that 68.27 % of the errors on the given labelled images lie "
       "within 1 sigma (use images the model was not trained on; where the predicted sigma's shape is worse than none, "
-      "a constant sigma per axis replaces it), and records the range of lit pixels of those "
+      "a constant sigma per axis replaces it, scaled as a power of the image's lit-site count when that covers images "
+      "of few and many lit sites alike), and records the range of lit pixels of those "
       "images as the model's input envelope (calibration_node flags images outside it out_of_distribution); "
       "writes the model atomically and prints one JSON line with the factors, the envelope and the 1/2/3-sigma "
       "coverage before and after.",
@@ -102,8 +103,10 @@ int runCalibrateSigma(int argc, char** argv) {
   };
   std::cout << "{\"command\": \"calibrate-sigma\", \"model\": \"" << args.get("out") << "\", \"samples\": " << c.samples
             << ", \"lit_sites_min\": " << envelope.min_sites << ", \"lit_sites_max\": " << envelope.max_sites
-            << ", \"sigma_mode\": \"" << (c.constant ? "constant" : "head")
-            << "\", \"constant_sigma_alpha_deg\": " << c.constant_sigma_alpha_rad * 180.0 / M_PI
+            << ", \"sigma_mode\": \"" << (c.constant ? (c.site_law.active() ? "lit_sites" : "constant") : "head")
+            << "\", \"sigma_site_exponent\": " << c.site_law.exponent
+            << ", \"sigma_site_reference\": " << c.site_law.reference_sites
+            << ", \"constant_sigma_alpha_deg\": " << c.constant_sigma_alpha_rad * 180.0 / M_PI
             << ", \"constant_sigma_beta_deg\": " << c.constant_sigma_beta_rad * 180.0 / M_PI
             << ", \"correction_degree\": " << model.meta.angle_correction.degree << ", \"inference_symmetry\": \""
             << inferenceSymmetryName(model.meta.inference_symmetry) << "\"";

@@ -189,6 +189,12 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::EndMap;
   }
   e << YAML::Key << "inference_symmetry" << YAML::Value << inferenceSymmetryName(m.inference_symmetry);
+  if (m.sigma_site_law.active()) {
+    e << YAML::Key << "sigma_site_law" << YAML::Value << YAML::BeginMap;
+    e << YAML::Key << "exponent" << YAML::Value << m.sigma_site_law.exponent;
+    e << YAML::Key << "reference_sites" << YAML::Value << m.sigma_site_law.reference_sites;
+    e << YAML::EndMap;
+  }
   e << YAML::Key << "sensor_name" << YAML::Value << m.sensor_name;
   e << YAML::Key << "training" << YAML::Value << mapFromText(m.training_yaml, "training summary");
   e << YAML::Key << "metrics" << YAML::Value << mapFromText(m.metrics_yaml, "metrics");
@@ -279,6 +285,15 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     } catch (const std::invalid_argument& e) {
       throw ModelError(origin + ": metadata key 'angle_correction': " + e.what());
     }
+  }
+  if (const YAML::Node law = root["sigma_site_law"]) {  // absent: sigma does not follow the lit sites
+    if (!law.IsMap()) throw ModelError(origin + ": metadata key 'sigma_site_law' is not a map");
+    m.sigma_site_law.exponent = get<double>(law, "exponent", origin, "sigma_site_law.");
+    m.sigma_site_law.reference_sites = get<double>(law, "reference_sites", origin, "sigma_site_law.");
+    if (!std::isfinite(m.sigma_site_law.exponent) || std::abs(m.sigma_site_law.exponent) > 10.0 ||
+        !(m.sigma_site_law.reference_sites > 0.0) || !std::isfinite(m.sigma_site_law.reference_sites))
+      throw ModelError(origin + ": metadata key 'sigma_site_law' needs an exponent within +-10 and a positive " +
+                       "reference_sites");
   }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
   m.sensor_yaml = get<std::string>(root, "sensor", origin, "");

@@ -11,11 +11,14 @@
 namespace dss {
 
 SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples) {
+  model.meta.sigma_site_law = {};  // refitted below, from the head's (or the constant's) own sigma
   std::vector<ErrorAndSigma> za, zb;
+  std::vector<int> sites;
   for (const HeldOutPrediction& h : predictHeldOut(model, data, max_samples, "sigma calibration")) {
     const Prediction& p = h.prediction;
     za.push_back({p.alpha_rad - h.sample->alpha_rad, std::sqrt(p.alpha_variance_rad2)});
     zb.push_back({p.beta_rad - h.sample->beta_rad, std::sqrt(p.beta_variance_rad2)});
+    sites.push_back(p.active_sites);
   }
   SigmaCalibration c;
   c.samples = za.size();
@@ -35,14 +38,24 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
   c.alpha_after = measureCoverage(za);
   c.beta_after = measureCoverage(zb);
 
-  // The same 1-sigma level from one sigma per axis: where the head's shape
-  // does not follow the error (its 2 and 3 sigma coverage further from the
-  // Gaussian's than a constant's), the constant is the honest answer.
+  // The same 1-sigma level from one sigma per axis, following the lit-site
+  // count where that covers images of few and many lit sites alike: where the
+  // head's shape does not follow the error (its 2 and 3 sigma coverage further
+  // from the Gaussian's than the constant's), the constant is the honest answer.
+  auto sited = [&](const std::vector<ErrorAndSigma>& z) {
+    std::vector<SitedError> out;
+    for (std::size_t k = 0; k < z.size(); ++k) out.push_back({z[k].error_rad, sites[k]});
+    return out;
+  };
+  std::vector<SitedError> sited_both = sited(za);
+  const std::vector<SitedError> sited_beta = sited(zb);
+  if (axes_exchange) sited_both.insert(sited_both.end(), sited_beta.begin(), sited_beta.end());
+  c.site_law = axes_exchange ? fitSiteSigmaLaw({sited_both}) : fitSiteSigmaLaw({sited(za), sited_beta});
   auto constant = [&](std::vector<ErrorAndSigma> z) {
     std::vector<ErrorAndSigma> fit = axes_exchange ? both : z;
-    for (auto& s : fit) s.sigma_rad = 1.0;
+    for (std::size_t k = 0; k < fit.size(); ++k) fit[k].sigma_rad = c.site_law.factor(sites[k % sites.size()]);
     const double sigma = sigmaScaleForCoverage(fit);
-    for (auto& s : z) s.sigma_rad = sigma;
+    for (std::size_t k = 0; k < z.size(); ++k) z[k].sigma_rad = sigma * c.site_law.factor(sites[k]);
     return std::make_pair(sigma, measureCoverage(z));
   };
   auto shapeError = [](const Coverage& a, const Coverage& b) {
@@ -60,10 +73,12 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
     c.constant_sigma_alpha_rad = sigma_alpha;
     c.constant_sigma_beta_rad = sigma_beta;
     model.setConstantSigma(sigma_alpha, sigma_beta);
-    metrics["sigma_mode"] = "constant";
+    model.meta.sigma_site_law = c.site_law;
+    metrics["sigma_mode"] = c.site_law.active() ? "lit_sites" : "constant";
     metrics["sigma_constant_alpha_rad"] = sigma_alpha;
     metrics["sigma_constant_beta_rad"] = sigma_beta;
   } else {
+    c.site_law = {};
     model.scaleSigma(c.scale_alpha, c.scale_beta);
     if (const auto sigma = model.constantSigma()) {
       // A constant from an earlier calibration, scaled: still a constant.
@@ -82,6 +97,13 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
       metrics["sigma_scale_alpha"] = total("sigma_scale_alpha", c.scale_alpha);
       metrics["sigma_scale_beta"] = total("sigma_scale_beta", c.scale_beta);
     }
+  }
+  if (c.site_law.active()) {
+    metrics["sigma_site_exponent"] = c.site_law.exponent;
+    metrics["sigma_site_reference"] = c.site_law.reference_sites;
+  } else {
+    metrics.remove("sigma_site_exponent");
+    metrics.remove("sigma_site_reference");
   }
   metrics["sigma_calibration_samples"] = c.samples;
   model.meta.metrics_yaml = YAML::Dump(metrics);

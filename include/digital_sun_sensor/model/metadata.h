@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "digital_sun_sensor/eval/uncertainty.h"
 #include "digital_sun_sensor/model/angle_correction.h"
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/model/input_spec.h"
@@ -26,6 +27,9 @@ struct ModelMetadata {
   // Estimates averaged over these mirror images (set after training, by dss
   // calibrate-sigma; the sensor must have the symmetry).
   InferenceSymmetry inference_symmetry = InferenceSymmetry::kNone;
+  // Predicted sigma scaled with the image's lit-site count (fitted by dss
+  // calibrate-sigma with a constant sigma; inactive otherwise).
+  SiteSigmaLaw sigma_site_law;
   std::string sensor_name;
   std::string sensor_yaml;    // canonical config (toYaml) the model was made for
   std::string training_yaml;  // YAML map: data, schedule, wall time ("{}" untrained)

@@ -6,7 +6,9 @@
 // errors lie within 1 sigma, fixes the level; it is folded into the variance
 // head's bias, so the model file stays self-contained. Where the head's shape
 // is worse than none (2 and 3 sigma coverage further from the Gaussian's than a
-// constant sigma's), the head is replaced by a constant per axis. Torch-free header.
+// constant sigma's), the head is replaced by a constant per axis, scaled with
+// the image's lit-site count when that covers few- and many-site images alike
+// (eval/uncertainty's SiteSigmaLaw). Torch-free header.
 #pragma once
 
 #include <cstddef>
@@ -21,9 +23,11 @@ struct Model;
 struct SigmaCalibration {
   std::size_t samples = 0;
   double scale_alpha = 1.0, scale_beta = 1.0;  // factors on the head's sigma for 68.27 % coverage
-  // A constant sigma per axis replaced the head's (its shape did not follow the error).
+  // A constant sigma per axis replaced the head's (its shape did not follow the error),
+  // at reference_sites of site_law when that is active.
   bool constant = false;
   double constant_sigma_alpha_rad = 0.0, constant_sigma_beta_rad = 0.0;
+  SiteSigmaLaw site_law;  // the constant's scaling with the lit-site count (inactive: none, or the head's sigma)
   Coverage alpha_before, beta_before, alpha_after, beta_after;  // after: of what the model now predicts
 };
 
