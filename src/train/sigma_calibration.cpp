@@ -47,10 +47,14 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
     for (std::size_t k = 0; k < z.size(); ++k) out.push_back({z[k].error_rad, sites[k]});
     return out;
   };
-  std::vector<SitedError> sited_both = sited(za);
+  std::vector<SitedError> sited_alpha = sited(za);
   const std::vector<SitedError> sited_beta = sited(zb);
-  if (axes_exchange) sited_both.insert(sited_both.end(), sited_beta.begin(), sited_beta.end());
-  c.site_law = axes_exchange ? fitSiteSigmaLaw({sited_both}) : fitSiteSigmaLaw({sited(za), sited_beta});
+  if (axes_exchange) {
+    sited_alpha.insert(sited_alpha.end(), sited_beta.begin(), sited_beta.end());  // one group: both axes
+    c.site_law = fitSiteSigmaLaw({sited_alpha});
+  } else {
+    c.site_law = fitSiteSigmaLaw({sited_alpha, sited_beta});
+  }
   auto constant = [&](std::vector<ErrorAndSigma> z) {
     std::vector<ErrorAndSigma> fit = axes_exchange ? both : z;
     for (std::size_t k = 0; k < fit.size(); ++k) fit[k].sigma_rad = c.site_law.factor(sites[k % sites.size()]);
