@@ -1,11 +1,11 @@
 // Whole-image rendering: determinism, symmetry, truth, anomalies, as-built errors.
-#include "digital_sun_sensor/sim/dataset_generator.h"
-#include "digital_sun_sensor/sim/geometry.h"
-#include "digital_sun_sensor/sim/renderer.h"
-
 #include <gtest/gtest.h>
 
 #include <cmath>
+
+#include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
 namespace {
@@ -85,7 +85,8 @@ TEST(Renderer, QuarterTurnOfTheSunRotatesTheImage) {
   cv::minMaxLoc(a, nullptr, &peak);
   for (int row = 0; row < a.rows; ++row) {
     for (int col = 0; col < a.cols; ++col) {
-      worst = std::max(worst, static_cast<double>(std::abs(a.at<float>(row, col) - b.at<float>(col, a.cols - 1 - row))));
+      worst =
+          std::max(worst, static_cast<double>(std::abs(a.at<float>(row, col) - b.at<float>(col, a.cols - 1 - row))));
     }
   }
   EXPECT_LT(worst / peak, 1e-3);
@@ -156,6 +157,34 @@ TEST(Sampling, GridFollowsPublishedProtocol) {
     EXPECT_NEAR(hit->x() / 1.55, std::round(hit->x() / 1.55), 1e-6);
     EXPECT_NEAR(hit->y() / 1.55, std::round(hit->y() / 1.55), 1e-6);
   }
+}
+
+TEST(Sampling, EdgeSamplingStaysInTheOuterBand) {
+  const SensorConfig c = shipped("thesis_sa");  // +-4.54 deg
+  const double band_deg = 0.2, limit_rad = (4.54 - band_deg) * kDeg;
+  const AttitudeSampler edge(c, SamplingMode::kEdge, 7, band_deg);
+  int corner = 0, sides[4] = {0, 0, 0, 0};
+  for (std::uint64_t i = 0; i < 2000; ++i) {
+    const SunAnglesRad a = anglesFromSunVector(edge.sunVector(i));
+    const bool alpha_edge = std::abs(a.alpha) >= limit_rad - 1e-12, beta_edge = std::abs(a.beta) >= limit_rad - 1e-12;
+    ASSERT_TRUE(alpha_edge || beta_edge) << "sample " << i << " inside the band's inner border";
+    ASSERT_LE(std::abs(a.alpha), 4.54 * kDeg + 1e-12);
+    ASSERT_LE(std::abs(a.beta), 4.54 * kDeg + 1e-12);
+    corner += alpha_edge && beta_edge ? 1 : 0;
+    if (alpha_edge) ++sides[a.alpha > 0 ? 0 : 1];
+    if (beta_edge) ++sides[a.beta > 0 ? 2 : 3];
+  }
+  // Uniform over the band (area 4 (2 a w - w^2), a = 4.54, w = 0.2): each side
+  // holds 2 a w of it (25.6 %, corners counted on both of theirs), the four
+  // corners 4 w^2 (2.3 %).
+  for (int side : sides) EXPECT_NEAR(side, 511, 60);
+  EXPECT_NEAR(corner, 45, 20);
+  // Deterministic per index, and a band outside (0, half field] is refused.
+  EXPECT_EQ(edge.sunVector(5), AttitudeSampler(c, SamplingMode::kEdge, 7, band_deg).sunVector(5));
+  EXPECT_THROW(AttitudeSampler(c, SamplingMode::kEdge, 7, 0.0), std::invalid_argument);
+  EXPECT_THROW(AttitudeSampler(c, SamplingMode::kEdge, 7, 5.0), std::invalid_argument);
+  EXPECT_EQ(parseSamplingMode("edge"), SamplingMode::kEdge);
+  EXPECT_EQ(toString(SamplingMode::kEdge), "edge");
 }
 
 }  // namespace

@@ -1,14 +1,13 @@
-#include "commands.h"
-#include "progress.h"
-
-#include "digital_sun_sensor/ros/bag_io.h"
-#include "digital_sun_sensor/sim/dataset_generator.h"
-
 #include <yaml-cpp/yaml.h>
 
 #include <iostream>
 #include <sstream>
 #include <thread>
+
+#include "commands.h"
+#include "digital_sun_sensor/ros/bag_io.h"
+#include "digital_sun_sensor/sim/dataset_generator.h"
+#include "progress.h"
 
 namespace dss::cli {
 
@@ -60,19 +59,22 @@ SensorConfig loadSensorFromArgs(const Args& args) {
 int runGenerate(int argc, char** argv) {
   auto specs = sensorOptions();
   const std::string threads = std::to_string(std::max(1u, std::thread::hardware_concurrency()));
-  specs.insert(specs.end(), {
-                                {"count", "N", "number of images", "", true, false},
-                                {"seed", "S", "dataset seed (attitudes, noise, sensor draws)", "", true, false},
-                                {"sampling", "MODE", "random (uniform over the FOV) | grid (published protocol)",
-                                 "random", false, false},
-                                {"offset", "K", "first sample index (grid: position in the shuffled grid)", "0",
-                                 false, false},
-                                {"instances", "K", "sensors drawn from the config (as-built errors, debris, FPN)",
-                                 "1", false, false},
-                                {"rate", "HZ", "stamp spacing of the messages in the bag", "10", false, false},
-                                {"threads", "T", "render threads", threads, false, false},
-                                {"out", "BAG", "output rosbag", "", true, false},
-                            });
+  specs.insert(
+      specs.end(),
+      {
+          {"count", "N", "number of images", "", true, false},
+          {"seed", "S", "dataset seed (attitudes, noise, sensor draws)", "", true, false},
+          {"sampling", "MODE",
+           "random (uniform over the FOV) | edge (uniform over its outer band) | grid "
+           "(published protocol)",
+           "random", false, false},
+          {"edge-band-deg", "DEG", "edge sampling: width of the band inside the FOV's border", "0.2", false, false},
+          {"offset", "K", "first sample index (grid: position in the shuffled grid)", "0", false, false},
+          {"instances", "K", "sensors drawn from the config (as-built errors, debris, FPN)", "1", false, false},
+          {"rate", "HZ", "stamp spacing of the messages in the bag", "10", false, false},
+          {"threads", "T", "render threads", threads, false, false},
+          {"out", "BAG", "output rosbag", "", true, false},
+      });
   Args args("dss generate", "Renders a dataset into a rosbag of /sun_sensor/image + /sun_sensor/truth.", specs);
   if (!args.parse(argc, argv, 2)) return 0;
   const SensorConfig config = loadSensorFromArgs(args);
@@ -80,6 +82,7 @@ int runGenerate(int argc, char** argv) {
   spec.count = static_cast<std::uint64_t>(args.getInt("count"));
   spec.seed = static_cast<std::uint64_t>(args.getInt("seed"));
   spec.sampling = parseSamplingMode(args.get("sampling"));
+  spec.edge_band_deg = args.getDouble("edge-band-deg");
   spec.offset = static_cast<std::uint64_t>(args.getInt("offset"));
   spec.instances = static_cast<int>(args.getInt("instances"));
   spec.threads = static_cast<int>(args.getInt("threads"));
@@ -90,7 +93,9 @@ int runGenerate(int argc, char** argv) {
   info << YAML::BeginMap << YAML::Key << "generator" << YAML::Value << "digital_sun_sensor dss generate 0.1.0";
   info << YAML::Key << "count" << YAML::Value << spec.count << YAML::Key << "seed" << YAML::Value << spec.seed;
   info << YAML::Key << "sampling" << YAML::Value << toString(spec.sampling) << YAML::Key << "offset" << YAML::Value
-       << spec.offset << YAML::Key << "instances" << YAML::Value << spec.instances;
+       << spec.offset;
+  if (spec.sampling == SamplingMode::kEdge) info << YAML::Key << "edge_band_deg" << YAML::Value << spec.edge_band_deg;
+  info << YAML::Key << "instances" << YAML::Value << spec.instances;
   info << YAML::Key << "anomalies" << YAML::Value << args.get("anomalies");
   info << YAML::Key << "sensor_file" << YAML::Value << args.get("sensor");
   info << YAML::Key << "overrides" << YAML::Value << YAML::Flow << args.all("set");

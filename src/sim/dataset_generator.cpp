@@ -13,7 +13,7 @@ std::uint64_t DatasetGenerator::instanceSeed(std::uint64_t dataset_seed, int k) 
 }
 
 DatasetGenerator::DatasetGenerator(const SensorConfig& config, const DatasetSpec& spec)
-    : spec_(spec), sampler_(config, spec.sampling, spec.seed) {
+    : spec_(spec), sampler_(config, spec.sampling, spec.seed, spec.edge_band_deg) {
   if (spec_.instances < 1) throw std::invalid_argument("instances must be >= 1");
   if (spec_.threads < 1) spec_.threads = 1;
   for (int k = 0; k < spec_.instances; ++k) {
@@ -37,8 +37,8 @@ void DatasetGenerator::run(const std::function<void(const DatasetItem&)>& sink,
           item.index = start + j;
           const std::uint64_t index = spec_.offset + item.index;
           item.instance = static_cast<int>(item.index % renderers_.size());
-          item.image = renderers_[item.instance]->render(sampler_.sunVector(index),
-                                                         deriveSeed(spec_.seed, index), &item.truth, spec_.render);
+          item.image = renderers_[item.instance]->render(sampler_.sunVector(index), deriveSeed(spec_.seed, index),
+                                                         &item.truth, spec_.render);
         } catch (...) {
           std::lock_guard<std::mutex> lock(error_mutex);
           error = std::current_exception();

@@ -1,28 +1,47 @@
 #include "digital_sun_sensor/sim/sampling.h"
 
-#include "digital_sun_sensor/common/random.h"
-#include "digital_sun_sensor/sim/geometry.h"
-
+#include <algorithm>
 #include <cmath>
 #include <numeric>
 #include <stdexcept>
+
+#include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
 
 SamplingMode parseSamplingMode(const std::string& text) {
   if (text == "random") return SamplingMode::kRandom;
+  if (text == "edge") return SamplingMode::kEdge;
   if (text == "grid") return SamplingMode::kGrid;
-  throw std::invalid_argument("unknown sampling '" + text + "' (expected random or grid)");
+  throw std::invalid_argument("unknown sampling '" + text + "' (expected random, edge or grid)");
 }
 
-std::string toString(SamplingMode mode) { return mode == SamplingMode::kRandom ? "random" : "grid"; }
+std::string toString(SamplingMode mode) {
+  switch (mode) {
+    case SamplingMode::kRandom:
+      return "random";
+    case SamplingMode::kEdge:
+      return "edge";
+    case SamplingMode::kGrid:
+      break;
+  }
+  return "grid";
+}
 
-AttitudeSampler::AttitudeSampler(const SensorConfig& config, SamplingMode mode, std::uint64_t seed)
+AttitudeSampler::AttitudeSampler(const SensorConfig& config, SamplingMode mode, std::uint64_t seed,
+                                 double edge_band_deg)
     : mode_(mode),
       seed_(seed),
       alpha_max_rad_(config.fov.alpha_max_deg * M_PI / 180.0),
       beta_max_rad_(config.fov.beta_max_deg * M_PI / 180.0),
       pitch_over_height_(config.detector.pitch_um / (config.mask.height_mm * 1000.0)) {
+  if (mode_ == SamplingMode::kEdge) {
+    if (!(edge_band_deg > 0.0) || edge_band_deg > std::min(config.fov.alpha_max_deg, config.fov.beta_max_deg))
+      throw std::invalid_argument("edge sampling: the band (" + std::to_string(edge_band_deg) +
+                                  " deg) must be > 0 and at most the half field of view");
+    edge_band_rad_ = edge_band_deg * M_PI / 180.0;
+  }
   if (mode_ == SamplingMode::kGrid) {
     grid_half_x_ = config.detector.width_px / 2;
     grid_half_y_ = config.detector.height_px / 2;
@@ -40,6 +59,18 @@ Eigen::Vector3d AttitudeSampler::sunVector(std::uint64_t index) const {
     const double alpha = rng.uniform(-alpha_max_rad_, alpha_max_rad_);
     const double beta = rng.uniform(-beta_max_rad_, beta_max_rad_);
     return sunVectorFromAngles(alpha, beta);
+  }
+  if (mode_ == SamplingMode::kEdge) {
+    // Uniform over the band by rejection from the whole field: a few draws
+    // for bands of a few per cent, and the same direction for an index
+    // whatever the thread that asks.
+    Rng rng(deriveSeed(seed_, 0xED6E000000ULL + index));
+    for (;;) {
+      const double alpha = rng.uniform(-alpha_max_rad_, alpha_max_rad_);
+      const double beta = rng.uniform(-beta_max_rad_, beta_max_rad_);
+      if (std::abs(alpha) >= alpha_max_rad_ - edge_band_rad_ || std::abs(beta) >= beta_max_rad_ - edge_band_rad_)
+        return sunVectorFromAngles(alpha, beta);
+    }
   }
   const std::uint32_t point = order_[(index) % order_.size()];
   const int width = 2 * grid_half_x_ + 1;

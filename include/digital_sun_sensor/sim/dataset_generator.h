@@ -2,13 +2,13 @@
 // sink in index order, so that the output is identical for any thread count.
 #pragma once
 
-#include "digital_sun_sensor/sim/renderer.h"
-#include "digital_sun_sensor/sim/sampling.h"
-
 #include <cstdint>
 #include <functional>
 #include <memory>
 #include <vector>
+
+#include "digital_sun_sensor/sim/renderer.h"
+#include "digital_sun_sensor/sim/sampling.h"
 
 namespace dss {
 
@@ -16,8 +16,9 @@ struct DatasetSpec {
   std::uint64_t count = 0;
   std::uint64_t seed = 0;
   SamplingMode sampling = SamplingMode::kRandom;
-  std::uint64_t offset = 0;  // first sample index (grid: position in the permutation)
-  int instances = 1;         // sensors drawn from the config (as-built errors, debris, FPN)
+  double edge_band_deg = 0.2;  // kEdge: width of the field's outer band
+  std::uint64_t offset = 0;    // first sample index (grid: position in the permutation)
+  int instances = 1;           // sensors drawn from the config (as-built errors, debris, FPN)
   int threads = 2;
   RenderOptions render;
 };

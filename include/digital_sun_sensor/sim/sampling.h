@@ -1,18 +1,19 @@
-// Sun directions for datasets: uniform random over the field of view, or the
-// published protocol's grid of spot centres on integer pixel offsets.
+// Sun directions for datasets: uniform random over the field of view, uniform
+// over its outer band (where the spot is cut by the detector edge: rare in a
+// uniform draw, and where the largest errors arise), or the published
+// protocol's grid of spot centres on integer pixel offsets.
 #pragma once
 
-#include "digital_sun_sensor/sim/sensor_config.h"
-
 #include <Eigen/Core>
-
 #include <cstdint>
 #include <string>
 #include <vector>
 
+#include "digital_sun_sensor/sim/sensor_config.h"
+
 namespace dss {
 
-enum class SamplingMode { kRandom, kGrid };
+enum class SamplingMode { kRandom, kEdge, kGrid };
 
 SamplingMode parseSamplingMode(const std::string& text);  // throws std::invalid_argument
 std::string toString(SamplingMode mode);
@@ -22,7 +23,9 @@ class AttitudeSampler {
   // Grid: spot centres (single centred aperture) at integer pixel offsets
   // -W/2..W/2 from the detector centre (513 x 513 for the 512 px reference),
   // visited in a seeded random order; alpha = -atan(x p / h).
-  AttitudeSampler(const SensorConfig& config, SamplingMode mode, std::uint64_t seed);
+  // Edge: uniform over the part of the field within `edge_band_deg` of its
+  // border in alpha or beta (required > 0 for kEdge, ignored otherwise).
+  AttitudeSampler(const SensorConfig& config, SamplingMode mode, std::uint64_t seed, double edge_band_deg = 0.0);
 
   // Sun vector (sensor frame) of dataset image `index`; deterministic.
   Eigen::Vector3d sunVector(std::uint64_t index) const;
@@ -33,6 +36,7 @@ class AttitudeSampler {
   SamplingMode mode_;
   std::uint64_t seed_;
   double alpha_max_rad_, beta_max_rad_;
+  double edge_band_rad_ = 0.0;
   double pitch_over_height_;
   int grid_half_x_ = 0, grid_half_y_ = 0;
   std::vector<std::uint32_t> order_;
