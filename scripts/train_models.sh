@@ -18,20 +18,21 @@ mkdir -p "$DATA" "$ROOT/models"
 # centroid weighting, angle correction (maximum degree fitted on the sigma bag; keep: none fitted),
 # inference symmetry (dihedral: estimates averaged over the 8 mirror images; keep: none),
 # anomaly bags added to the training and sigma bags (none, or ANOMALIES:TRAIN_COUNT:TRAIN_SEED:SIGMA_COUNT:SIGMA_SEED,
-# ANOMALIES as for dss generate --anomalies)
+# ANOMALIES as for dss generate --anomalies), nominal images from the field's outer band added to the training
+# (none, or COUNT:SEED: dss generate --sampling edge, where the detector edge cuts the spot)
 recipe() {
   case "$1" in
-    thesis_sa) echo "60000 501 502 45 resnet18_w32 503 learned keep dihedral none" ;;
-    thesis_ma) echo "60000 511 512 20 resnet10_w16 513 learned keep dihedral stray_light=1:20000:561:1500:563" ;;
-    wide_ma) echo "24000 521 522 7 resnet10_w16 523 value 16 keep none" ;;
-    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep dihedral none" ;;
+    thesis_sa) echo "60000 501 502 30 resnet18_w32 503 learned keep dihedral stray_light=1:20000:571:1500:573 12000:581" ;;
+    thesis_ma) echo "60000 511 512 20 resnet10_w16 513 learned keep dihedral stray_light=1:20000:561:1500:563 none" ;;
+    wide_ma) echo "24000 521 522 7 resnet10_w16 523 value 16 keep none none" ;;
+    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep dihedral none none" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
 
 for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
   for s in $sensor; do
-    read -r count train_seed test_seed epochs arch sigma_seed weighting correction symmetry anomaly \
+    read -r count train_seed test_seed epochs arch sigma_seed weighting correction symmetry anomaly edge \
       <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
     sigma="$DATA/$s.sigma.bag"
@@ -46,6 +47,13 @@ for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
       [ -f "$extra_sigma" ] || "$DSS" generate --sensor "$cfg" --anomalies "$spec" --count "$anomaly_sigma_count" \
         --seed "$anomaly_sigma_seed" --out "$extra_sigma"
       train="$train $extra" sigma="$sigma $extra_sigma"
+    fi
+    if [ "$edge" != none ]; then
+      IFS=: read -r edge_count edge_seed <<<"$edge"
+      extra="$DATA/$s.edge.train.bag"
+      [ -f "$extra" ] || "$DSS" generate --sensor "$cfg" --sampling edge --count "$edge_count" --seed "$edge_seed" \
+        --out "$extra"
+      train="$train $extra"
     fi
     train_and_evaluate "$s" "$train" "$test" "$sigma" "$epochs" "$arch" "$correction" "$symmetry" \
       --centroid-weighting "$weighting"
