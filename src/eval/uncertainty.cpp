@@ -80,7 +80,7 @@ SiteSigmaLaw fitSiteSigmaLaw(const std::vector<std::vector<SitedError>>& groups)
   };
   SiteSigmaLaw best = candidate;
   double best_miss = miss(best);
-  for (int step = 1; step <= 30; ++step) {  // by |exponent|: 0.05 .. 1.5, and -0.05 .. -0.5
+  for (int step = 1; step <= 60; ++step) {  // by |exponent|: 0.05 .. 3, and -0.05 .. -0.5
     for (const double exponent : {0.05 * step, -0.05 * step}) {
       if (exponent < -0.5 - 1e-9) continue;
       candidate.exponent = exponent;

@@ -45,7 +45,7 @@ struct SitedError {
   int sites;  // lit sites of the image
 };
 
-// The exponent (-0.5 to 1.5 in steps of 0.05) whose law, scaled per group
+// The exponent (-0.5 to 3 in steps of 0.05) whose law, scaled per group
 // for 68.27 % coverage over the group, covers each quarter of the group's
 // samples by lit-site count closest to 68.27 % at 1 sigma (summed absolute
 // misses over groups and quarters; ties go to the smaller |exponent|);
