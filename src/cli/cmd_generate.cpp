@@ -68,7 +68,8 @@ int runGenerate(int argc, char** argv) {
            "random (uniform over the FOV) | edge (uniform over its outer band) | grid "
            "(published protocol)",
            "random", false, false},
-          {"edge-band-deg", "DEG", "edge sampling: width of the band inside the FOV's border", "0.2", false, false},
+          {"edge-band-deg", "DEG", "edge sampling: width of the band inside the FOV's border",
+           defaultText(DatasetSpec{}.edge_band_deg), false, false},
           {"offset", "K", "first sample index (grid: position in the shuffled grid)", "0", false, false},
           {"instances", "K", "sensors drawn from the config (as-built errors, debris, FPN)", "1", false, false},
           {"rate", "HZ", "stamp spacing of the messages in the bag", "10", false, false},
