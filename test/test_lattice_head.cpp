@@ -4,11 +4,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 #include <opencv2/core.hpp>
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
+#include "digital_sun_sensor/model/sscnn_estimator.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sparse/threads.h"
 
@@ -187,25 +189,22 @@ TEST(LatticeHead, SpotPresenceResolvesPitchesTheCentroidWeightsWrongly) {
   EXPECT_NEAR(p[0].beta_rad, p[1].beta_rad, 0.1 * pitch_deg * kDeg);
 }
 
-// wide_ma: the phase of the whole spots, whole pitches from the aperture code
-// (spot sizes against the diameters) or from the true class as in training,
-// and the geometric prior (refraction in the window, tan) give the angles of
-// the nominal geometry over +-55 deg, untrained, to the pixelation of the
-// drawn spots (1 px is about 0.26 deg here; spots of four sizes: 0.02 deg),
-// although the edge cuts some of them.
-TEST(LatticeHead, CodedLatticeWithGeometricPriorRecoversWideAngles) {
-  sparse::configureThreads(1, 1);
-  const SensorConfig c = shipped("wide_ma");
-  const Model m = createModel(c, "resnet10_w16");
-  const MaskGeometry nominal = MaskGeometry::nominalOf(c);
-  const std::vector<std::pair<double, double>> angles_deg{{0.3, -0.2},   {20.0, 5.0},    {-35.0, 41.0},
-                                                          {55.0, -12.0}, {-50.0, -50.0}, {8.0, 54.0}};
+// wide_ma images of ideal spots where the nominal geometry puts them for
+// these angles, each spot's size following `diameter_um` of its aperture
+// (sigma 2.5 px at 38 um, in proportion to the diameter), spots cut by the
+// edge included; and the class of each (the aperture nearest the centre).
+struct CodedImages {
   std::vector<cv::Mat> images;
   std::vector<std::int64_t> classes;
+};
+CodedImages drawCodedSpots(const SensorConfig& c, const std::vector<std::pair<double, double>>& angles_deg,
+                           const std::function<double(int)>& diameter_um) {
+  const MaskGeometry nominal = MaskGeometry::nominalOf(c);
+  CodedImages out;
   for (const auto& [alpha, beta] : angles_deg) {
     const Eigen::Vector3d sun = sunVectorFromAngles(alpha * kDeg, beta * kDeg);
     std::vector<Eigen::Vector2d> spots;
-    std::vector<double> sigmas;  // spot size in proportion to the aperture's diameter
+    std::vector<double> sigmas;
     int nearest = -1;
     for (int a = 0; a < nominal.numApertures(); ++a) {
       const auto p = nominal.spotPx(a, sun);
@@ -217,24 +216,71 @@ TEST(LatticeHead, CodedLatticeWithGeometricPriorRecoversWideAngles) {
       // the phase comes from the whole ones (lattice_whole_spot_phase).
       if (!nominal.insideDetector(*p, -4.0)) continue;
       spots.push_back(*p);
-      sigmas.push_back(2.5 * c.mask.apertures[static_cast<std::size_t>(a)].diameter_um / 38.0);
+      sigmas.push_back(2.5 * diameter_um(a) / 38.0);
     }
-    ASSERT_GE(nearest, 0);
-    images.push_back(drawSpots(c, spots, sigmas));
-    classes.push_back(nearest);
+    EXPECT_GE(nearest, 0);
+    out.images.push_back(drawSpots(c, spots, sigmas));
+    out.classes.push_back(nearest);
   }
+  return out;
+}
+
+// wide_ma: the phase of the whole spots, whole pitches from the aperture code
+// (spot sizes against the diameters) or from the true class as in training,
+// and the geometric prior (refraction in the window, tan) give the angles of
+// the nominal geometry over +-55 deg, untrained, to the pixelation of the
+// drawn spots (1 px is about 0.26 deg here; spots of four sizes: 0.02 deg),
+// although the edge cuts some of them; the code chooses clearly.
+TEST(LatticeHead, CodedLatticeWithGeometricPriorRecoversWideAngles) {
+  sparse::configureThreads(1, 1);
+  const SensorConfig c = shipped("wide_ma");
+  const Model m = createModel(c, "resnet10_w16");
+  const std::vector<std::pair<double, double>> angles_deg{{0.3, -0.2},   {20.0, 5.0},    {-35.0, 41.0},
+                                                          {55.0, -12.0}, {-50.0, -50.0}, {8.0, 54.0}};
+  const CodedImages drawn = drawCodedSpots(c, angles_deg, [&](int a) { return c.mask.apertures[a].diameter_um; });
   torch::NoGradGuard no_grad;
-  const auto input = encodeImages(images, m.meta.input);
+  const auto input = encodeImages(drawn.images, m.meta.input);
   for (const bool classes_known : {true, false}) {
-    const auto out = classes_known ? m.net->forward(input, torch::tensor(classes)) : m.net->forward(input);
+    const auto out = classes_known ? m.net->forward(input, torch::tensor(drawn.classes)) : m.net->forward(input);
     const auto predictions = m.decode(out, *input.sites);
-    for (std::size_t k = 0; k < images.size(); ++k) {
+    for (std::size_t k = 0; k < drawn.images.size(); ++k) {
       SCOPED_TRACE("image " + std::to_string(k) + (classes_known ? ", true class" : ", aperture code"));
       EXPECT_NEAR(predictions[k].alpha_rad / kDeg, angles_deg[k].first, 0.02);
       EXPECT_NEAR(predictions[k].beta_rad / kDeg, angles_deg[k].second, 0.02);
-      EXPECT_EQ(predictions[k].subfov_class, classes[k]);
+      EXPECT_EQ(predictions[k].subfov_class, drawn.classes[k]);
+      EXPECT_GE(predictions[k].code_margin, kMinApertureCodeMargin);
     }
   }
+}
+
+// Spots whose sizes fit two placements of the lattice equally (each drawn
+// between its aperture's diameter and that of the aperture one column over,
+// the geometric mean: the log sizes halfway) leave the aperture ambiguous:
+// the code's margin falls to about 1 and the estimator declines the image
+// ("ambiguous_aperture") rather than risk an answer whole pitches off
+// (tens of degrees); the same images with true sizes are answered.
+TEST(LatticeHead, SpotSizesThatFitTwoPlacementsAreDeclined) {
+  sparse::configureThreads(1, 1);
+  const SensorConfig c = shipped("wide_ma");
+  const std::string path = ::testing::TempDir() + "dss_code_margin.dssmodel";
+  saveModel(createModel(c, "resnet10_w16"), path);
+  SscnnEstimator estimator(path);
+  // Near the centre the visible spots come from columns 2..4, so the one-column
+  // shift keeps every spot on an aperture.
+  const std::vector<std::pair<double, double>> angles_deg{{0.3, -0.2}, {10.0, 5.0}, {-6.0, 12.0}};
+  const int columns = 7;
+  const auto between = [&](int a) {
+    EXPECT_GT(a % columns, 0) << "aperture " << a << " has no column to its left";
+    const int left = a % columns > 0 ? a - 1 : a;
+    return std::sqrt(c.mask.apertures[a].diameter_um * c.mask.apertures[left].diameter_um);
+  };
+  const CodedImages ambiguous = drawCodedSpots(c, angles_deg, between);
+  for (const SunEstimate& e : estimator.estimate(ambiguous.images)) {
+    EXPECT_FALSE(e.valid);
+    EXPECT_EQ(e.status.rfind("ambiguous_aperture: ", 0), 0u) << e.status;
+  }
+  const CodedImages clear = drawCodedSpots(c, angles_deg, [&](int a) { return c.mask.apertures[a].diameter_um; });
+  for (const SunEstimate& e : estimator.estimate(clear.images)) EXPECT_TRUE(e.valid) << e.status;
 }
 
 }  // namespace

@@ -15,6 +15,7 @@
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/train/bias_calibration.h"
+#include "digital_sun_sensor/train/loss.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
 #include "digital_sun_sensor/train/trainer.h"
 
@@ -279,6 +280,40 @@ TEST(Train, AugmentationIsSeededAndKeepsLabels) {
   EXPECT_FALSE(a.pixels.empty());
   EXPECT_LE(a.pixels.size(), s.pixels.size());
   for (auto v : a.dn) EXPECT_GT(v, spec.threshold_dn);
+}
+
+// An image whose lattice was resolved to another aperture than the true one
+// (tens of degrees off) adds nothing to the angle terms of the loss, nor any
+// gradient to its angles; the class term still sees it.
+TEST(Train, WrongApertureImagesAreLeftOutOfTheAngleLoss) {
+  SscnnOutput out;
+  out.angles = torch::tensor({0.01, -0.02, 0.03, 0.0, 40.0, -60.0}).view({3, 2}).requires_grad_();
+  out.log_variance = torch::full({3, 2}, -2.0);
+  out.class_logits = torch::zeros({3, 4});
+  const auto target = torch::zeros({3, 2});
+  const auto classes = torch::tensor({1, 2, 3}, torch::kLong);
+  out.resolved_class = torch::tensor({1, 2, 0}, torch::kLong);  // the third resolved wrongly
+
+  SscnnOutput right_two;
+  right_two.angles = out.angles.slice(0, 0, 2);
+  right_two.log_variance = out.log_variance.slice(0, 0, 2);
+  right_two.class_logits = out.class_logits.slice(0, 0, 2);
+  const double residual_scale = 0.05;
+  const auto loss = trainingLoss(out, target, classes, residual_scale, 0.0);
+  EXPECT_NEAR(
+      loss.item<double>(),
+      trainingLoss(right_two, target.slice(0, 0, 2), classes.slice(0, 0, 2), residual_scale, 0.0).item<double>(), 1e-9);
+  loss.backward();
+  EXPECT_EQ(out.angles.grad()[2].abs().sum().item<double>(), 0.0);
+  EXPECT_GT(out.angles.grad()[0].abs().sum().item<double>(), 0.0);
+
+  // Without a resolved class every image counts: the wrong one dominates.
+  SscnnOutput unresolved = out;
+  unresolved.resolved_class = torch::Tensor();
+  EXPECT_GT(trainingLoss(unresolved, target, classes, residual_scale, 0.0).item<double>(), 1e5);
+  // The class term is over every image.
+  EXPECT_NEAR(trainingLoss(out, target, classes, residual_scale, 1.0).item<double>() - loss.item<double>(),
+              std::log(4.0), 1e-6);
 }
 
 TEST(BiasCalibration, LegendreBasisAndBadCorrectionsInTheModelFile) {

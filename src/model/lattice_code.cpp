@@ -42,10 +42,10 @@ struct AxisPlan {
 
 }  // namespace
 
-torch::Tensor codeLatticeSteps(const LatticeCode& code, const torch::Tensor& phase, const torch::Tensor& xy,
-                               const torch::Tensor& lit, const torch::Tensor& index, std::int64_t batch) {
+CodePlacement codeLatticePlacement(const LatticeCode& code, const torch::Tensor& phase, const torch::Tensor& xy,
+                                   const torch::Tensor& lit, const torch::Tensor& index, std::int64_t batch) {
   if (!code.log_area.defined() || code.log_area.size(0) != code.rows || code.log_area.size(1) != code.columns)
-    throw std::invalid_argument("codeLatticeSteps: log_area must be [rows, columns]");
+    throw std::invalid_argument("codeLatticePlacement: log_area must be [rows, columns]");
   torch::NoGradGuard no_grad;
   const AxisPlan ax(code.pitch_x, code.columns), ay(code.pitch_y, code.rows);
   const auto phase_d = phase.detach().to(torch::kDouble);
@@ -113,10 +113,15 @@ torch::Tensor codeLatticeSteps(const LatticeCode& code, const torch::Tensor& pha
       outside(ay, 1, code.max_shift_y).unsqueeze(2) | outside(ax, 0, code.max_shift_x).unsqueeze(1);
 
   const auto score = out_of_field.to(torch::kDouble) * 1e6 + contradictions.to(torch::kDouble) * 1e3 + size_misfit;
-  const auto best = score.view({batch, -1}).argmin(1);
+  const auto flat_score = score.view({batch, -1});
+  const auto best = flat_score.argmin(1);
+  const auto lowest = std::get<0>(flat_score.topk(2, 1, /*largest=*/false));  // [B, 2], ascending
   const auto step_x = ax.steps.index_select(0, best.remainder(ax.candidates)) * ax.pitch;
   const auto step_y = ay.steps.index_select(0, best.div(ax.candidates, "floor")) * ay.pitch;
-  return torch::stack({step_x, step_y}, 1).to(phase.scalar_type());
+  // A small floor keeps a tie of two perfect fits (e.g. one usable spot per axis) at a margin of 1.
+  constexpr double kScoreFloor = 1e-3;
+  return {torch::stack({step_x, step_y}, 1).to(phase.scalar_type()),
+          (lowest.select(1, 1) + kScoreFloor) / (lowest.select(1, 0) + kScoreFloor)};
 }
 
 torch::Tensor axisContradictions(double pitch, int count, double edge_margin, int min_spot_sites,

@@ -23,17 +23,27 @@ struct LatticeCode {
   int min_spot_sites = kMinSpotSites;
 };
 
-// For each image, the lattice-centre spot position minus the phase [B, 2]
-// (whole pitches, plus half a pitch for an even count), chosen among every
+// The aperture code's choice per image.
+struct CodePlacement {
+  torch::Tensor steps;  // [B, 2]: lattice-centre spot position minus the phase
+  // [B], >= 1: the runner-up placement's score over the chosen one's. Near 1,
+  // another whole-pitch placement explains the spots about as well (stray
+  // light swelling the spots unevenly): the aperture is ambiguous.
+  torch::Tensor margin;
+};
+
+// For each image, the lattice-centre spot position minus the phase (whole
+// pitches, plus half a pitch for an even count), chosen among every
 // placement of the aperture lattice over the cells the spots occupy: fewest
 // contradictions (a lit cell no aperture explains, a wholly visible aperture
 // with no spot), then the spot sizes (variance of the lit sites along each
 // axis, where the spot is not cut across it) that best follow the apertures'
-// areas, up to a common factor per axis. Not differentiable.
+// areas, up to a common factor per axis; and its margin over the runner-up.
+// Not differentiable.
 // phase [B, 2]; xy [N, 2] site positions; lit [N] 1 for a lit site; index [N]
 // image of each site.
-torch::Tensor codeLatticeSteps(const LatticeCode& code, const torch::Tensor& phase, const torch::Tensor& xy,
-                               const torch::Tensor& lit, const torch::Tensor& index, std::int64_t batch);
+CodePlacement codeLatticePlacement(const LatticeCode& code, const torch::Tensor& phase, const torch::Tensor& xy,
+                                   const torch::Tensor& lit, const torch::Tensor& index, std::int64_t batch);
 
 // One axis of a lattice whose whole pitches the centroid resolves
 // (LatticeResolve::kCentroid): for each candidate placement, the lattice

@@ -223,6 +223,12 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
     resolved_class = out.resolved_class.to(torch::kLong).contiguous();
     resolved.emplace(resolved_class.accessor<std::int64_t, 1>());
   }
+  torch::Tensor code_margin;
+  std::optional<torch::TensorAccessor<double, 1>> margin;
+  if (out.code_margin.defined()) {
+    code_margin = out.code_margin.detach().to(torch::kDouble).contiguous();
+    margin.emplace(code_margin.accessor<double, 1>());
+  }
   // With an inference symmetry, each image's mirror images are consecutive
   // rows (encodeImages): their angles are mapped back and averaged, the
   // correction fitted to that average is applied to it, and the class is the
@@ -246,6 +252,7 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
       beta += gb / group;
       alpha_variance += gva / group;
       beta_variance += gvb / group;
+      if (margin) p.code_margin = std::min(p.code_margin, (*margin)[i + g]);
     }
     const auto bias = meta.angle_correction.bias(alpha, beta);
     p.alpha_rad = (alpha - bias[0]) * s;

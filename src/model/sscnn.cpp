@@ -265,6 +265,7 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
     class_in = torch::cat({class_in, torch::cos(turns), torch::sin(turns)}, 1);
   }
   result.class_logits = class_output_->forward(torch::silu(class_hidden_->forward(class_in)));
+  result.code_margin = spots.code_margin;
   if (class_resolved) {
     position = resolveLattice(spots, result.class_logits, known_classes);
     // The class that goes with the position: the aperture whose spot is
@@ -334,7 +335,9 @@ SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const 
       code.max_shift_x = geometric_prior_extent_[0].item<double>();
       code.max_shift_y = geometric_prior_extent_[1].item<double>();
     }
-    reading.code_steps = codeLatticeSteps(code, reading.phase, xy, lit, index, batch);
+    const CodePlacement placement = codeLatticePlacement(code, reading.phase, xy, lit, index, batch);
+    reading.code_steps = placement.steps;
+    reading.code_margin = placement.margin;
   } else if (arch_.lattice_resolve == LatticeResolve::kCentroid) {
     for (int axis = 0; axis < 2; ++axis)
       reading.contradictions[axis] = axisContradictions(

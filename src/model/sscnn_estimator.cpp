@@ -1,5 +1,7 @@
 #include "digital_sun_sensor/model/sscnn_estimator.h"
 
+#include <iomanip>
+#include <sstream>
 #include <stdexcept>
 
 #include "digital_sun_sensor/model/input_envelope.h"
@@ -60,6 +62,12 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
       e.status = "out_of_distribution: " + std::to_string(p.active_sites) +
                  " lit pixels (training: " + std::to_string(impl_->envelope.min_sites) + ".." +
                  std::to_string(impl_->envelope.max_sites) + ")";
+    } else if (p.code_margin < kMinApertureCodeMargin) {
+      e.valid = false;
+      std::ostringstream status;
+      status << "ambiguous_aperture: the runner-up lattice placement fits the spot sizes only " << std::setprecision(3)
+             << p.code_margin << " times worse (needs " << kMinApertureCodeMargin << ")";
+      e.status = status.str();
     }
   }
   return out;

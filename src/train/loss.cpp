@@ -11,8 +11,19 @@ torch::Tensor trainingLoss(const SscnnOutput& out, const torch::Tensor& target, 
   // errors grow; the variance learns from the detached error instead, so it
   // is honest without steering the angles (README "Training").
   const auto error = out.angles - target;
-  const auto mse = error.pow(2).mean() / (residual_scale * residual_scale);
-  const auto nll = (0.5 * error.detach().pow(2) * torch::exp(-out.log_variance) + 0.5 * out.log_variance).mean();
+  // An image whose lattice was resolved to another aperture than the true
+  // one (stray light swelling the spots unevenly misleads the aperture code)
+  // is whole pitches off, tens of degrees. No gradient mends a discrete
+  // choice, and such an error would swamp its batch and, for about a thousand
+  // steps, AdamW's second moments: it is left out of the angle terms.
+  auto keep = torch::ones({error.size(0), 1}, error.options());
+  if (out.resolved_class.defined())
+    keep = (out.resolved_class.to(torch::kLong) == classes.to(torch::kLong)).to(error.scalar_type()).unsqueeze(1);
+  const auto kept_terms = (2.0 * keep.sum()).clamp_min(1.0);
+  const auto mse = (error.pow(2) * keep).sum() / kept_terms / (residual_scale * residual_scale);
+  const auto nll =
+      ((0.5 * error.detach().pow(2) * torch::exp(-out.log_variance) + 0.5 * out.log_variance) * keep).sum() /
+      kept_terms;
   auto loss = mse + nll;
   if (class_weight > 0) loss = loss + class_weight * torch::cross_entropy_loss(out.class_logits, classes);
   return loss;

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <optional>
@@ -28,6 +29,10 @@ struct Prediction {
   int subfov_class = -1;
   double class_probability = 0.0;
   int active_sites = 0;
+  // Aperture-code heads: how clearly the spots' sizes chose the aperture
+  // (SscnnOutput::code_margin, the least over the mirror images); infinity
+  // for other heads.
+  double code_margin = std::numeric_limits<double>::infinity();
 };
 
 struct Model {

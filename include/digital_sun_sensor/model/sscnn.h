@@ -56,6 +56,9 @@ struct SscnnOutput {
   // Lattice head resolved by the class: the class that goes with the
   // resolved position, [B] (undefined otherwise: argmax of the logits).
   torch::Tensor resolved_class;
+  // Aperture-code lattice head: the runner-up placement's score over the
+  // chosen one's, [B] (>= 1; undefined for other heads).
+  torch::Tensor code_margin;
 };
 
 class SscnnNetImpl : public torch::nn::Module {
@@ -89,11 +92,12 @@ class SscnnNetImpl : public torch::nn::Module {
   // lit [N] (1 for a lit site) and image index [N]: the weighted centroid
   // [B, 2] and, with the lattice head, the phase of the positions modulo the
   // lattice pitch [B, 2] (from the whole spots: lattice_whole_spot_phase)
-  // and, with the aperture code, the whole pitches it gives [B, 2], else
+  // and, with the aperture code, the whole pitches it gives [B, 2] and their
+  // margin [B] (CodePlacement), else
   // per axis the contradictions of each candidate placement [B, K]
   // (axisContradictions over latticeSteps).
   struct SpotReading {
-    torch::Tensor centroid, phase, code_steps;
+    torch::Tensor centroid, phase, code_steps, code_margin;
     std::array<torch::Tensor, 2> contradictions;
   };
   // Site weights of the centroid branch (arch.centroid_weighting) from its

@@ -9,6 +9,12 @@
 
 namespace dss {
 
+// Aperture-code models (wide_ma): an estimate whose runner-up lattice placement
+// scores less than this many times the chosen one's is marked invalid,
+// "ambiguous_aperture": the spots' sizes do not tell which apertures they come
+// from, and a wrong choice is off by whole lattice pitches (tens of degrees).
+constexpr double kMinApertureCodeMargin = 2.5;
+
 class SscnnEstimator : public SunEstimator {
  public:
   // Loads a model file (throws ModelError naming the problem); with
