@@ -18,6 +18,7 @@
 #include "digital_sun_sensor/train/loss.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
 #include "digital_sun_sensor/train/trainer.h"
+#include "digital_sun_sensor/train/validation_error.h"
 
 namespace dss {
 namespace {
@@ -314,6 +315,43 @@ TEST(Train, WrongApertureImagesAreLeftOutOfTheAngleLoss) {
   // The class term is over every image.
   EXPECT_NEAR(trainingLoss(out, target, classes, residual_scale, 1.0).item<double>() - loss.item<double>(),
               std::log(4.0), 1e-6);
+}
+
+// Validation ranks epochs by their accuracy: an image declined by the aperture
+// code's check or resolved to a wrong aperture (tens of degrees off) is
+// counted, not averaged; a wrong class with a small error (a spot between two
+// apertures) and a right class with a large error are averaged.
+TEST(Train, ValidationLeavesGrossFailuresOutOfTheMean) {
+  constexpr double kDeg = 3.14159265358979323846 / 180.0;
+  std::vector<SparseSample> truth(5);
+  std::vector<Prediction> predictions(5);
+  const double alpha_error_deg[5] = {0.001, 0.003, 40.0, 50.0, 2.0};
+  const int predicted_class[5] = {7, 8, 3, 7, 7};  // truth: class 7
+  for (int k = 0; k < 5; ++k) {
+    truth[k].alpha_rad = 0.1;
+    truth[k].beta_rad = -0.2;
+    truth[k].subfov_class = 7;
+    predictions[k].alpha_rad = 0.1 + alpha_error_deg[k] * kDeg;
+    predictions[k].beta_rad = -0.2 + 0.002 * kDeg;
+    predictions[k].subfov_class = predicted_class[k];
+  }
+  predictions[3].code_margin = 1.2;  // declined as the estimator would
+  std::vector<const SparseSample*> samples;
+  for (const auto& t : truth) samples.push_back(&t);
+
+  const ValidationError v = summarizeValidation(samples, predictions);
+  EXPECT_EQ(v.images, 5u);
+  EXPECT_EQ(v.gross, 2u);  // the wrong aperture (40 deg) and the declined one
+  EXPECT_NEAR(v.alpha_mean_deg, (0.001 + 0.003 + 2.0) / 3.0, 1e-9);
+  EXPECT_NEAR(v.alpha_max_deg, 2.0, 1e-9);
+  EXPECT_NEAR(v.beta_mean_deg, 0.002, 1e-9);
+  EXPECT_NEAR(v.class_accuracy, 3.0 / 5.0, 1e-12);
+
+  // Nothing left to rank by: the worst score, not a perfect one.
+  for (auto& p : predictions) p.code_margin = 1.0;
+  EXPECT_TRUE(std::isinf(summarizeValidation(samples, predictions).alpha_mean_deg));
+  predictions.pop_back();
+  EXPECT_THROW(summarizeValidation(samples, predictions), std::invalid_argument);
 }
 
 TEST(BiasCalibration, LegendreBasisAndBadCorrectionsInTheModelFile) {

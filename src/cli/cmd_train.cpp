@@ -5,6 +5,7 @@
 #include <optional>
 
 #include "commands.h"
+#include "digital_sun_sensor/common/json.h"
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/train/trainer.h"
@@ -126,11 +127,13 @@ int runTrain(int argc, char** argv) {
             << "\", \"model\": " << (complete ? "\"" + args.get("out") + "\"" : "null") << ", \"checkpoint\": \""
             << options.checkpoint_path << "\", \"epochs_completed\": " << p.epoch + (p.epoch_end ? 1 : 0)
             << ", \"wall_s\": " << result.wall_s << ", \"images_per_s\": " << p.images_per_s
-            << ", \"val_alpha_mean_deg\": " << p.val_alpha_mean_deg
-            << ", \"val_beta_mean_deg\": " << p.val_beta_mean_deg << ", \"val_alpha_max_deg\": " << p.val_alpha_max_deg
-            << ", \"val_beta_max_deg\": " << p.val_beta_max_deg << ", \"val_class_accuracy\": " << p.val_class_accuracy
-            << ", \"best_val_mean_deg\": " << p.best_val_mean_deg << ", \"best_epoch\": " << p.best_epoch + 1 << "}"
-            << std::endl;
+            << ", \"val_alpha_mean_deg\": " << json::number(p.val_alpha_mean_deg)
+            << ", \"val_beta_mean_deg\": " << json::number(p.val_beta_mean_deg)
+            << ", \"val_alpha_max_deg\": " << json::number(p.val_alpha_max_deg)
+            << ", \"val_beta_max_deg\": " << json::number(p.val_beta_max_deg)
+            << ", \"val_class_accuracy\": " << p.val_class_accuracy << ", \"val_gross\": " << p.val_gross
+            << ", \"best_val_mean_deg\": " << json::number(p.best_val_mean_deg)
+            << ", \"best_epoch\": " << p.best_epoch + 1 << "}" << std::endl;
   return complete ? 0 : 3;
 }
 

@@ -154,6 +154,7 @@ class TrainerNode {
     msg_.val_alpha_max_deg = p.val_alpha_max_deg;
     msg_.val_beta_max_deg = p.val_beta_max_deg;
     msg_.val_class_accuracy = p.val_class_accuracy;
+    msg_.val_gross = p.val_gross;
     msg_.best_val_mean_deg = p.best_val_mean_deg;
     msg_.best_epoch = p.best_epoch + 1;
   }
@@ -188,6 +189,7 @@ class TrainerNode {
     stat.add("val_alpha_mean_deg", msg_.val_alpha_mean_deg);
     stat.add("val_beta_mean_deg", msg_.val_beta_mean_deg);
     stat.add("val_class_accuracy", msg_.val_class_accuracy);
+    stat.add("val_gross", msg_.val_gross);
     stat.add("checkpoint", msg_.checkpoint);
   }
 

@@ -21,6 +21,7 @@
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/loss.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
+#include "digital_sun_sensor/train/validation_error.h"
 
 namespace dss {
 namespace {
@@ -89,11 +90,12 @@ std::string formatProgress(const TrainProgress& p) {
   char line[320];
   if (p.epoch_end) {
     std::snprintf(line, sizeof(line),
-                  "epoch %d/%d done: loss %.4f, validation mean %.5f / %.5f deg, max %.4f / %.4f deg, class %.2f%% "
-                  "(best %.5f deg at epoch %d); %.0f img/s, elapsed %s, ETA %s",
+                  "epoch %d/%d done: loss %.4f, validation mean %.5f / %.5f deg, max %.4f / %.4f deg, class %.2f%%, "
+                  "%lld gross (best %.5f deg at epoch %d); %.0f img/s, elapsed %s, ETA %s",
                   p.epoch + 1, p.epochs, p.loss, p.val_alpha_mean_deg, p.val_beta_mean_deg, p.val_alpha_max_deg,
-                  p.val_beta_max_deg, 100.0 * p.val_class_accuracy, p.best_val_mean_deg, p.best_epoch + 1,
-                  p.images_per_s, clock(p.elapsed_s).c_str(), clock(p.eta_s).c_str());
+                  p.val_beta_max_deg, 100.0 * p.val_class_accuracy, static_cast<long long>(p.val_gross),
+                  p.best_val_mean_deg, p.best_epoch + 1, p.images_per_s, clock(p.elapsed_s).c_str(),
+                  clock(p.eta_s).c_str());
   } else {
     std::snprintf(line, sizeof(line), "epoch %d/%d step %lld/%lld: loss %.4f, lr %.2e; %.0f img/s, elapsed %s, ETA %s",
                   p.epoch + 1, p.epochs, static_cast<long long>(p.step_in_epoch),
@@ -274,24 +276,14 @@ struct Trainer::Impl {
     std::vector<const SparseSample*> picked;
     for (std::size_t i = 0; i < n; ++i)
       picked.push_back(&validation.samples()[static_cast<std::size_t>(static_cast<double>(i) * stride)]);
-    const std::vector<Prediction> predictions = model.predictSamples(picked);
-    double sum_a = 0, sum_b = 0, max_a = 0, max_b = 0;
-    std::size_t correct = 0;
-    for (std::size_t k = 0; k < picked.size(); ++k) {
-      const double ea = std::abs(predictions[k].alpha_rad - picked[k]->alpha_rad) * kRadToDeg;
-      const double eb = std::abs(predictions[k].beta_rad - picked[k]->beta_rad) * kRadToDeg;
-      sum_a += ea;
-      sum_b += eb;
-      max_a = std::max(max_a, ea);
-      max_b = std::max(max_b, eb);
-      correct += predictions[k].subfov_class == std::max(0, picked[k]->subfov_class);
-    }
+    const ValidationError v = summarizeValidation(picked, model.predictSamples(picked));
     model.net->train();
-    out.val_alpha_mean_deg = sum_a / static_cast<double>(n);
-    out.val_beta_mean_deg = sum_b / static_cast<double>(n);
-    out.val_alpha_max_deg = max_a;
-    out.val_beta_max_deg = max_b;
-    out.val_class_accuracy = static_cast<double>(correct) / static_cast<double>(n);
+    out.val_alpha_mean_deg = v.alpha_mean_deg;
+    out.val_beta_mean_deg = v.beta_mean_deg;
+    out.val_alpha_max_deg = v.alpha_max_deg;
+    out.val_beta_max_deg = v.beta_max_deg;
+    out.val_class_accuracy = v.class_accuracy;
+    out.val_gross = static_cast<std::int64_t>(v.gross);
   }
 
   void validate() {
@@ -421,6 +413,7 @@ struct Trainer::Impl {
     v << YAML::Key << "validation_alpha_max_deg" << YAML::Value << last.val_alpha_max_deg;
     v << YAML::Key << "validation_beta_max_deg" << YAML::Value << last.val_beta_max_deg;
     v << YAML::Key << "validation_class_accuracy" << YAML::Value << last.val_class_accuracy;
+    v << YAML::Key << "validation_gross" << YAML::Value << last.val_gross;
     v << YAML::EndMap;
     m.meta.metrics_yaml = v.c_str();
     return m;

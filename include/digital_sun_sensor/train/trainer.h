@@ -66,6 +66,10 @@ struct TrainProgress {
   double val_alpha_mean_deg = 0.0, val_beta_mean_deg = 0.0;
   double val_alpha_max_deg = 0.0, val_beta_max_deg = 0.0;
   double val_class_accuracy = 0.0;
+  // Validation images left out of the mean and max: declined (ambiguous
+  // aperture) or resolved to a wrong class and off by over 1 deg
+  // (validation_error.h).
+  std::int64_t val_gross = 0;
   double best_val_mean_deg = 0.0;
   int best_epoch = -1;
 };
