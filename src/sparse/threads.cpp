@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <stdexcept>
 
+#include "digital_sun_sensor/common/allocator.h"
+
 namespace dss::sparse {
 
 void configureThreads(int aten_threads, int blas_threads) {
@@ -20,6 +22,8 @@ void configureThreads(int aten_threads, int blas_threads) {
   }();
   (void)interop_set;
   openblas_set_num_threads(blas_threads);
+  static const bool heap_retained = retainFreedMemory();
+  (void)heap_retained;
 }
 
 std::string threadSummary() {

@@ -2,7 +2,9 @@
 // runs the element-wise ops; OpenBLAS (pthreads) runs the sparse convolution
 // GEMMs. Letting both spawn one thread per core oversubscribes the cores, so
 // one of them gets one thread (measured: dss bench infer/train --aten-threads
-// --blas-threads; README).
+// --blas-threads; README). The first call also keeps freed memory in the
+// process for reuse (common/allocator.h), which every front end that runs the
+// network wants.
 #pragma once
 
 #include <string>
