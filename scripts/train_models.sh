@@ -24,7 +24,7 @@ recipe() {
   case "$1" in
     thesis_sa) echo "60000 501 502 30 resnet18_w32 503 learned keep dihedral stray_light=1:20000:571:1500:573 12000:581" ;;
     thesis_ma) echo "60000 511 512 20 resnet10_w16 513 learned keep dihedral stray_light=1:20000:561:1500:563 none" ;;
-    wide_ma) echo "24000 521 522 12 resnet10_w16 523 value 16 keep stray_light=1:4000:591:1500:593 none" ;;
+    wide_ma) echo "24000 521 522 5 resnet10_w16 523 value 16 keep stray_light=1:4000:591:1500:593 none" ;;
     thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep dihedral none none" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac

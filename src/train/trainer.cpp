@@ -27,7 +27,6 @@ namespace dss {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
 constexpr char kCheckpointMagic[8] = {'D', 'S', 'S', 'C', 'K', 'P', 'T', '1'};
 
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
