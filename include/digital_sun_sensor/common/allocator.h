@@ -11,8 +11,9 @@
 namespace dss {
 
 // Serves every allocation from the heap and never trims it (mallopt
-// M_MMAP_THRESHOLD and M_TRIM_THRESHOLD). Call once, before the numeric work;
-// returns false when the C library refused (then the defaults stay).
+// M_MMAP_THRESHOLD, then M_TRIM_THRESHOLD). Call once, before the numeric
+// work; returns false when the C library refused either (if the second, the
+// first stays set).
 bool retainFreedMemory();
 
 }  // namespace dss
