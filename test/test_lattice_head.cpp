@@ -12,6 +12,8 @@
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
 #include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
+#include "digital_sun_sensor/sim/sensor_instance.h"
 #include "digital_sun_sensor/sparse/threads.h"
 
 namespace dss {
@@ -119,6 +121,7 @@ TEST(LatticeHead, PhaseOfWholeSpotsIgnoresSpotsCutByTheEdge) {
   // As a model file made before the whole-spot phase was the default reads.
   Model all_spots_file = createModel(c, "resnet10_w16");
   all_spots_file.meta.arch.lattice_whole_spot_phase = false;
+  all_spots_file.meta.arch.lattice_spotwise_phase = false;
   const Model all_spots = deserializeModel(serializeModel(all_spots_file), "all_spots.dssmodel");
   const double pitch_px = 265.05 / 1.55, edge_px = 256.0;
   std::vector<double> shifts;
@@ -229,8 +232,9 @@ CodedImages drawCodedSpots(const SensorConfig& c, const std::vector<std::pair<do
 // (spot sizes against the diameters) or from the true class as in training,
 // and the geometric prior (refraction in the window, tan) give the angles of
 // the nominal geometry over +-55 deg, untrained, to the pixelation of the
-// drawn spots (1 px is about 0.26 deg here; spots of four sizes: 0.02 deg),
-// although the edge cuts some of them; the code chooses clearly.
+// drawn spots (1 px is about 0.26 deg here; spots of four sizes, the smallest
+// 3.5 px in radius: 0.021 deg, the spot-wise phase weighing the compact spots
+// most), although the edge cuts some of them; the code chooses clearly.
 TEST(LatticeHead, CodedLatticeWithGeometricPriorRecoversWideAngles) {
   sparse::configureThreads(1, 1);
   const SensorConfig c = shipped("wide_ma");
@@ -245,12 +249,63 @@ TEST(LatticeHead, CodedLatticeWithGeometricPriorRecoversWideAngles) {
     const auto predictions = m.decode(out, *input.sites);
     for (std::size_t k = 0; k < drawn.images.size(); ++k) {
       SCOPED_TRACE("image " + std::to_string(k) + (classes_known ? ", true class" : ", aperture code"));
-      EXPECT_NEAR(predictions[k].alpha_rad / kDeg, angles_deg[k].first, 0.02);
-      EXPECT_NEAR(predictions[k].beta_rad / kDeg, angles_deg[k].second, 0.02);
+      EXPECT_NEAR(predictions[k].alpha_rad / kDeg, angles_deg[k].first, 0.025);
+      EXPECT_NEAR(predictions[k].beta_rad / kDeg, angles_deg[k].second, 0.025);
       EXPECT_EQ(predictions[k].subfov_class, drawn.classes[k]);
       EXPECT_GE(predictions[k].code_margin, kMinApertureCodeMargin);
     }
   }
+}
+
+// wide_ma's simulated spots under its detector noise: the large apertures'
+// spots are dim Fresnel disks whose centroids are the noisiest, yet weighed
+// by their sums, as the phase did, they counted the most; the spot-wise phase
+// weighs each spot by sum / spread (about the inverse of its centroid's noise
+// variance) and leaves out only spots that touch the edge, and its estimates
+// scatter less over the same noise draws of one expected image. (On 2000
+// nominal test images the untrained head's noise fell from 0.00145 to
+// 0.00111 deg RMS, the baseline's 0.00114; README "Trained models".)
+TEST(LatticeHead, SpotwisePhaseAveragesTheDetectorNoiseBetter) {
+  sparse::configureThreads(1, 1);
+  const SensorConfig c = shipped("wide_ma");
+  ArchSpec arch = archPreset("resnet10_w16", c.numSubFovClasses());
+  arch.centroid_weighting = CentroidWeighting::kValue;  // wide_ma's: the intensity-weighted centroid at the start
+  const Model spotwise = createModel(c, arch, 1);
+  ASSERT_TRUE(spotwise.meta.arch.lattice_spotwise_phase);
+  Model summed_file = createModel(c, arch, 1);  // as model files made before it read
+  summed_file.meta.arch.lattice_spotwise_phase = false;
+  const Model summed = deserializeModel(serializeModel(summed_file), "summed.dssmodel");
+  // Noise draws of one expected image per attitude, at attitudes where the
+  // detector edge passes near a row or column of spots and where it does not.
+  const Renderer renderer(SensorInstance::nominalOf(c));
+  const std::vector<std::pair<double, double>> angles_deg{{3.1, -2.3}, {20.0, 5.0}, {-35.0, 41.0}, {8.0, 54.0}};
+  constexpr int kDraws = 40;
+  Rng rng(5);
+  std::vector<cv::Mat> noisy;
+  for (const auto& [alpha, beta] : angles_deg) {
+    ImageTruth truth;
+    const cv::Mat electrons = renderer.expectedElectrons(sunVectorFromAngles(alpha * kDeg, beta * kDeg), &truth);
+    for (int draw = 0; draw < kDraws; ++draw) noisy.push_back(renderer.detect(electrons, truth.exposure_s, rng));
+  }
+  // RMS about each attitude's mean estimate, both axes.
+  auto scatter_deg = [&](const Model& m) {
+    const auto predictions = m.predict(noisy);
+    double sum2 = 0.0;
+    for (std::size_t first = 0; first < predictions.size(); first += kDraws) {
+      double mean_a = 0.0, mean_b = 0.0;
+      for (int k = 0; k < kDraws; ++k) {
+        mean_a += predictions[first + k].alpha_rad / kDraws;
+        mean_b += predictions[first + k].beta_rad / kDraws;
+      }
+      for (int k = 0; k < kDraws; ++k)
+        sum2 += std::pow(predictions[first + k].alpha_rad - mean_a, 2) +
+                std::pow(predictions[first + k].beta_rad - mean_b, 2);
+    }
+    return std::sqrt(sum2 / (2.0 * predictions.size())) / kDeg;
+  };
+  const double with_spotwise = scatter_deg(spotwise), with_sums = scatter_deg(summed);
+  EXPECT_GT(with_sums, 0.0);
+  EXPECT_LT(with_spotwise, 0.9 * with_sums) << "spot-wise " << with_spotwise << " deg, summed " << with_sums << " deg";
 }
 
 // Spots whose sizes fit two placements of the lattice equally (each drawn

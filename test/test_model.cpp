@@ -201,6 +201,28 @@ TEST(Sscnn, CentroidWeightingStartsAsPlainOrIntensityWeightedCentroid) {
   EXPECT_LT((weighted.net->forwardDense(dense).angles[0] - weighted_angles[0]).abs().max().item<double>(), 1e-9);
 }
 
+// With feature corrections off the angles are a function of the spot
+// position alone: whatever the MLP's output layer holds, they do not move,
+// while with them on they do; the choice survives the model file.
+TEST(Sscnn, FeatureCorrectionsOffLeaveTheAnglesToThePosition) {
+  const SensorConfig c = shipped("thesis_sa");
+  ArchSpec arch = archPreset("resnet10_w16", c.numSubFovClasses());
+  const Model with = createModel(c, arch, 4);
+  arch.feature_corrections = false;
+  const Model without = createModel(c, arch, 4);
+  EXPECT_FALSE(deserializeModel(serializeModel(without), "without", &c).meta.arch.feature_corrections);
+  EXPECT_TRUE(deserializeModel(serializeModel(with), "with", &c).meta.arch.feature_corrections);
+
+  torch::NoGradGuard no_grad;
+  const auto input = encodeImages(imageList(), with.meta.input);
+  const auto before_with = with.net->forward(input).angles, before_without = without.net->forward(input).angles;
+  for (const Model* m : {&with, &without})
+    for (auto& p : m->net->named_parameters())
+      if (p.key().rfind("output.", 0) == 0) p.value().normal_(0.0, 1.0);
+  EXPECT_GT((with.net->forward(input).angles - before_with).abs().max().item<double>(), 1e-4);
+  EXPECT_EQ((without.net->forward(input).angles - before_without).abs().max().item<double>(), 0.0);
+}
+
 TEST(ModelFile, BatchNormVariantKeepsItsRunningStatistics) {
   const SensorConfig c = shipped("thesis_sa");
   ArchSpec arch = archPreset("resnet10_w16", c.numSubFovClasses());

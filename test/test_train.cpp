@@ -231,6 +231,9 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
   TrainOptions other_weighting = options;
   other_weighting.centroid_weighting = "value";
   EXPECT_NE(resumeError(other_weighting, train).find("centroid_weighting"), std::string::npos);
+  TrainOptions other_corrections = options;
+  other_corrections.feature_corrections = "off";
+  EXPECT_NE(resumeError(other_corrections, train).find("feature_corrections"), std::string::npos);
   TrainingSet fewer{train.spec()};
   for (std::size_t i = 1; i < train.size(); ++i) fewer.add(train.samples()[i]);
   EXPECT_NE(resumeError(options, fewer).find("different training data"), std::string::npos);
@@ -254,6 +257,14 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
     ADD_FAILURE() << "an unknown centroid weighting was accepted";
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("'learned' or 'value', not 'brightest'"), std::string::npos) << e.what();
+  }
+  bad = options;
+  bad.feature_corrections = "maybe";
+  try {
+    Trainer(tinySensor(), train, validation, bad);
+    ADD_FAILURE() << "an unknown feature_corrections value was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("'on' or 'off', not 'maybe'"), std::string::npos) << e.what();
   }
   AugmentationConfig aug;
   EXPECT_THROW(setAugmentation(aug, "nosie_probability=0.1"), std::invalid_argument);

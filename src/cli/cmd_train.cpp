@@ -38,6 +38,10 @@ int runTrain(int argc, char** argv) {
            "site weights of the centroid branch: learned (equal at the start) or value (the intensity-weighted "
            "centroid at the start); default: the --init model's, else learned",
            "", false, false},
+          {"feature-corrections", "ON_OFF",
+           "angle corrections from the pooled backbone features (on), or the angles a smooth function of the spot "
+           "position alone (off); default: the --init model's, else on",
+           "", false, false},
           {"init", "MODEL", "start from this model's weights (fine-tuning; it must suit the sensor)", "", false, false},
           {"resume", "CKPT", "continue from this checkpoint", "", false, false},
           {"checkpoint", "CKPT", "checkpoint file (default: MODEL.ckpt, or the --resume file)", "", false, false},
@@ -65,6 +69,7 @@ int runTrain(int argc, char** argv) {
   options.arch = args.get("arch");
   options.init_model = args.get("init");
   options.centroid_weighting = args.get("centroid-weighting");
+  options.feature_corrections = args.get("feature-corrections");
   options.epochs = static_cast<int>(args.getInt("epochs"));
   options.batch_size = static_cast<int>(args.getInt("batch"));
   options.learning_rate = args.getDouble("lr");

@@ -26,11 +26,16 @@ void ArchSpec::validate() const {
   }
   if (centroid_pool && centroid_width < 1) fail("centroid_width must be positive");
   if (!(residual_scale > 0 && residual_scale <= 1)) fail("residual_scale must be in (0, 1]");
+  if (!feature_corrections && !centroid_pool) fail("feature_corrections off needs centroid_pool");
   if (centroid_pool && (centroid_degree < 1 || centroid_degree > 5)) fail("centroid_degree must be in 1..5");
   if (latticeHead()) {
     if (!centroid_pool) fail("the lattice head needs centroid_pool");
     if (lattice_columns < 1 || lattice_rows < 1) fail("lattice_columns and lattice_rows must be positive");
     if (!(lattice_spot_radius > 0.0)) fail("lattice_spot_radius must be positive");
+    if (lattice_spotwise_phase && !lattice_whole_spot_phase)
+      fail("lattice_spotwise_phase needs lattice_whole_spot_phase");
+    if (lattice_spotwise_phase && !(lattice_pixel_x > 0.0 && lattice_pixel_y > 0.0))
+      fail("lattice_spotwise_phase needs positive lattice_pixel_x and lattice_pixel_y");
   } else if (lattice_pitch_x < 0.0 || lattice_pitch_y < 0.0) {
     fail("lattice pitches must be positive (or both 0: off)");
   }

@@ -107,6 +107,9 @@ void setLattice(const SensorConfig& config, ArchSpec& arch) {
   // For the code, the spot radius is the largest aperture's (as a circle,
   // normalized); thresholded masks keep the default, their lit core's scale.
   arch.lattice_whole_spot_phase = true;
+  arch.lattice_spotwise_phase = true;
+  arch.lattice_pixel_x = 2.0 / config.detector.width_px;
+  arch.lattice_pixel_y = 2.0 / config.detector.height_px;
   if (arch.lattice_resolve == LatticeResolve::kCode)
     arch.lattice_spot_radius = std::sqrt(max_area_um2 / M_PI) / pixel_um /
                                (0.5 * std::min(config.detector.width_px, config.detector.height_px));
@@ -157,6 +160,7 @@ std::string metadataToYaml(const ModelMetadata& m) {
   e << YAML::Key << "centroid_weighting" << YAML::Value << centroidWeightingName(m.arch.centroid_weighting);
   e << YAML::Key << "centroid_degree" << YAML::Value << m.arch.centroid_degree;
   e << YAML::Key << "residual_scale" << YAML::Value << m.arch.residual_scale;
+  e << YAML::Key << "feature_corrections" << YAML::Value << m.arch.feature_corrections;
   if (m.arch.latticeHead()) {
     e << YAML::Key << "lattice_pitch_x" << YAML::Value << m.arch.lattice_pitch_x;
     e << YAML::Key << "lattice_pitch_y" << YAML::Value << m.arch.lattice_pitch_y;
@@ -165,6 +169,11 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "lattice_spot_radius" << YAML::Value << m.arch.lattice_spot_radius;
     e << YAML::Key << "lattice_resolve" << YAML::Value << latticeResolveName(m.arch.lattice_resolve);
     e << YAML::Key << "lattice_whole_spot_phase" << YAML::Value << m.arch.lattice_whole_spot_phase;
+    e << YAML::Key << "lattice_spotwise_phase" << YAML::Value << m.arch.lattice_spotwise_phase;
+    if (m.arch.lattice_spotwise_phase) {
+      e << YAML::Key << "lattice_pixel_x" << YAML::Value << m.arch.lattice_pixel_x;
+      e << YAML::Key << "lattice_pixel_y" << YAML::Value << m.arch.lattice_pixel_y;
+    }
   }
   if (m.arch.geometric_prior_size > 0)
     e << YAML::Key << "geometric_prior_size" << YAML::Value << m.arch.geometric_prior_size;
@@ -234,6 +243,8 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   }
   m.arch.centroid_degree = get<int>(a, "centroid_degree", origin, "arch.");
   m.arch.residual_scale = get<double>(a, "residual_scale", origin, "arch.");
+  if (a["feature_corrections"])  // absent in models made before it existed: on
+    m.arch.feature_corrections = get<bool>(a, "feature_corrections", origin, "arch.");
   if (a["lattice_pitch_x"]) {  // absent in models without the lattice head
     m.arch.lattice_pitch_x = get<double>(a, "lattice_pitch_x", origin, "arch.");
     m.arch.lattice_pitch_y = get<double>(a, "lattice_pitch_y", origin, "arch.");
@@ -244,6 +255,12 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
         a["lattice_resolve"] ? get<std::string>(a, "lattice_resolve", origin, "arch.") : "centroid";
     if (a["lattice_whole_spot_phase"])  // absent in models made before it existed: off
       m.arch.lattice_whole_spot_phase = get<bool>(a, "lattice_whole_spot_phase", origin, "arch.");
+    if (a["lattice_spotwise_phase"])  // absent in models made before it existed: off
+      m.arch.lattice_spotwise_phase = get<bool>(a, "lattice_spotwise_phase", origin, "arch.");
+    if (m.arch.lattice_spotwise_phase) {
+      m.arch.lattice_pixel_x = get<double>(a, "lattice_pixel_x", origin, "arch.");
+      m.arch.lattice_pixel_y = get<double>(a, "lattice_pixel_y", origin, "arch.");
+    }
     bool known = false;
     for (const auto r : {LatticeResolve::kCentroid, LatticeResolve::kClass, LatticeResolve::kCode})
       if (resolve == latticeResolveName(r)) {

@@ -277,10 +277,12 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
   }
   torch::Tensor h = position.defined() ? torch::cat({normed, position}, 1) : normed;
   for (auto& layer : mlp_) h = torch::silu(layer->forward(h));
-  result.angles = arch_.residual_scale * output_->forward(h);
-  if (position.defined())
-    result.angles =
-        result.angles + priorAngles(position) + arch_.residual_scale * centroid_skip_->forward(monomials(position));
+  if (arch_.feature_corrections) result.angles = arch_.residual_scale * output_->forward(h);
+  if (position.defined()) {
+    const torch::Tensor smooth =
+        priorAngles(position) + arch_.residual_scale * centroid_skip_->forward(monomials(position));
+    result.angles = result.angles.defined() ? result.angles + smooth : smooth;
+  }
   result.log_variance = variance_->forward(h.detach());
   return result;
 }
@@ -312,12 +314,17 @@ SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const 
   };
   reading.phase = circularMean(w).first;
   if (arch_.lattice_whole_spot_phase) {
-    torch::Tensor whole;  // [N, 1]: the site's spot lies wholly on the detector
+    torch::Tensor whole;  // [N, 1]: the factor of the site's weight in the phase, 0 where its spot is cut
     {
       torch::NoGradGuard no_grad;
       const torch::Tensor site_phase = reading.phase.detach().index_select(0, index);
-      const torch::Tensor spot_centre = site_phase + ((xy.detach() - site_phase) / pitch).round() * pitch;
-      whole = (spot_centre.abs() < 1.0 - arch_.wholeSpotMargin()).all(1, true).to(w.scalar_type());
+      const torch::Tensor cell = ((xy.detach() - site_phase) / pitch).round();
+      if (arch_.lattice_spotwise_phase) {
+        whole = spotwisePhaseFactors(w.detach(), xy.detach(), lit, index, cell);
+      } else {
+        const torch::Tensor spot_centre = site_phase + cell * pitch;
+        whole = (spot_centre.abs() < 1.0 - arch_.wholeSpotMargin()).all(1, true).to(w.scalar_type());
+      }
     }
     const auto [whole_phase, whole_weight] = circularMean(w * whole);
     // An image without a whole spot keeps the phase of all its spots.
@@ -345,6 +352,32 @@ SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const 
           reading.phase.select(1, axis), latticeSteps(axis, xy.options()), xy.select(1, axis), lit, index, batch);
   }
   return reading;
+}
+
+torch::Tensor SscnnNetImpl::spotwisePhaseFactors(const torch::Tensor& w, const torch::Tensor& xy,
+                                                 const torch::Tensor& lit, const torch::Tensor& index,
+                                                 const torch::Tensor& cell) const {
+  // A spot is the lit sites of one image in one lattice cell around the phase.
+  const auto span =
+      static_cast<std::int64_t>(2 * std::ceil(1.0 / std::min(arch_.lattice_pitch_x, arch_.lattice_pitch_y) + 2.0) + 1);
+  const torch::Tensor cells = cell.to(torch::kLong) + span / 2;
+  const torch::Tensor key = (index * span + cells.select(1, 0)) * span + cells.select(1, 1);
+  const torch::Tensor spot = std::get<1>(torch::_unique(key, /*sorted=*/false, /*return_inverse=*/true));
+  const std::int64_t spots = spot.numel() > 0 ? spot.max().item<std::int64_t>() + 1 : 0;
+  auto per_spot = [&](const torch::Tensor& values) {
+    return torch::zeros({spots, values.size(1)}, values.options()).index_add(0, spot, values);
+  };
+  const torch::Tensor sum_w = per_spot(w).clamp_min(1e-12);
+  const torch::Tensor mean = per_spot(w * xy) / sum_w;
+  const torch::Tensor spread = (per_spot(w * xy * xy) / sum_w - mean * mean).sum(1, true);  // s^2
+  // Inverse spread in pixel units; a spot of one pixel has that pixel's own spread.
+  const double px = arch_.lattice_pixel_x, py = arch_.lattice_pixel_y;
+  torch::Tensor factor = (px * py) / spread.clamp_min((px * px + py * py) / 12.0);
+  // Cut: a lit site on the detector's outermost row or column (|coordinate| = 1 - pixel / 2).
+  const torch::Tensor limit = torch::tensor({1.0 - px, 1.0 - py}, xy.options());
+  const torch::Tensor on_edge = (xy.abs() > limit).any(1, true).to(w.scalar_type()) * lit.view({-1, 1});
+  factor = torch::where(per_spot(on_edge) > 0, torch::zeros_like(factor), factor);
+  return factor.index_select(0, spot);
 }
 
 torch::Tensor SscnnNetImpl::latticeSteps(int axis, const torch::TensorOptions& options) const {

@@ -30,6 +30,7 @@ TrainOptions optionsFromParams(const ros::NodeHandle& pnh) {
   o.arch = pnh.param<std::string>("arch", "");
   o.init_model = pnh.param<std::string>("init_model", "");
   o.centroid_weighting = pnh.param<std::string>("centroid_weighting", "");
+  o.feature_corrections = pnh.param<std::string>("feature_corrections", "");
   o.batch_size = pnh.param("batch_size", o.batch_size);
   o.epochs = pnh.param("epochs", o.epochs);
   o.patience_epochs = pnh.param("patience_epochs", o.patience_epochs);

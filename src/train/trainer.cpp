@@ -141,6 +141,8 @@ void TrainOptions::validate() const {
       require(false, std::string("centroid_weighting: ") + e.what());
     }
   }
+  require(feature_corrections.empty() || feature_corrections == "on" || feature_corrections == "off",
+          "feature_corrections must be 'on' or 'off', not '" + feature_corrections + "'");
   const auto& a = augmentation;
   for (double p : {a.gain_probability, a.noise_probability, a.threshold_probability, a.dropout_probability})
     require(p >= 0 && p <= 1, "augmentation probabilities must be in [0, 1]");
@@ -188,11 +190,18 @@ struct Trainer::Impl {
       if (options.centroid_weighting != weighting)
         throw std::invalid_argument("training option init_model: " + options.init_model + " has centroid weighting " +
                                     weighting + ", not " + options.centroid_weighting);
+      const std::string corrections = model.meta.arch.feature_corrections ? "on" : "off";
+      if (options.feature_corrections.empty()) options.feature_corrections = corrections;
+      if (options.feature_corrections != corrections)
+        throw std::invalid_argument("training option init_model: " + options.init_model + " has feature corrections " +
+                                    corrections + ", not " + options.feature_corrections);
     } else {
       if (options.arch.empty()) options.arch = defaultArchName();
       if (options.centroid_weighting.empty()) options.centroid_weighting = "learned";
       ArchSpec arch = archPreset(options.arch, sensor.numSubFovClasses());
       arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
+      if (options.feature_corrections.empty()) options.feature_corrections = "on";
+      arch.feature_corrections = options.feature_corrections == "on";
       model = createModel(sensor, arch, deriveSeed(options.seed, 0xA7C4));
     }
     model.net->train();
@@ -306,6 +315,7 @@ struct Trainer::Impl {
     e << YAML::Key << "sensor" << YAML::Value << sensor.name;
     e << YAML::Key << "arch" << YAML::Value << options.arch;
     e << YAML::Key << "centroid_weighting" << YAML::Value << options.centroid_weighting;
+    e << YAML::Key << "feature_corrections" << YAML::Value << options.feature_corrections;
     e << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
     e << YAML::Key << "epochs" << YAML::Value << options.epochs;
     e << YAML::Key << "seed" << YAML::Value << options.seed;
@@ -353,6 +363,8 @@ struct Trainer::Impl {
       expect("arch", options.arch);
       if (state["centroid_weighting"])  // absent in checkpoints made before it existed
         expect("centroid_weighting", options.centroid_weighting);
+      if (state["feature_corrections"])  // absent in checkpoints made before it existed
+        expect("feature_corrections", options.feature_corrections);
       expect("batch_size", std::to_string(options.batch_size));
       expect("epochs", std::to_string(options.epochs));
       expect("seed", std::to_string(options.seed));

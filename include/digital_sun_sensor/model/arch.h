@@ -42,6 +42,12 @@ struct ArchSpec {
   // is about the learning rate whatever the gradient's size, so their scale
   // sets the finest step the optimizer takes on the angles.
   double residual_scale = 0.02;
+  // The angles get corrections from the pooled backbone features (the MLP)
+  // besides the polynomial of the position. Off, the angles are a smooth
+  // function of the position alone (prior + polynomial; the learned centroid
+  // weights, class and variance branches still train): on wide_ma the MLP's
+  // corrections jumped with the position (README "Trained models").
+  bool feature_corrections = true;
   // Masks whose apertures form a regular, centred lattice of columns x rows:
   // the head reads the spot shift modulo the lattice pitch (circular mean of
   // the weighted site positions, normalized units) and adds whole pitches
@@ -56,6 +62,16 @@ struct ArchSpec {
   // two spot radii inside): a spot cut by the edge has its centroid pulled
   // inward by up to its radius, a bias the head cannot tell from the image.
   bool lattice_whole_spot_phase = false;
+  // Whole spots read spot by spot (with the whole-spot phase): a spot is whole
+  // when none of its lit sites lies on the detector's outermost pixel rows or
+  // columns (the baseline's rule: under the on-chip threshold nothing of such a
+  // spot is missing, and it keeps more spots than the centre margin), and each
+  // weighs by its summed weight over its weighted spread s^2 instead of by its
+  // summed weight alone: the noise variance of an intensity-weighted centroid
+  // goes as s^2 / sum, and wide_ma's spots differ in spread as much as in
+  // brightness. Needs the detector's pixel size (normalized units).
+  bool lattice_spotwise_phase = false;
+  double lattice_pixel_x = 0.0, lattice_pixel_y = 0.0;
   // Wide fields of view: the physics prior maps the position to the angles
   // through a size x size table of the nominal geometry (refraction, tan)
   // instead of a slope, so the learned terms stay small corrections. 0: slope.

@@ -105,6 +105,12 @@ class SscnnNetImpl : public torch::nn::Module {
   torch::Tensor centroidWeights(const torch::Tensor& logits, const torch::Tensor& value) const;
   SpotReading readSpots(const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& lit,
                         const torch::Tensor& index, std::int64_t batch) const;
+  // Factors [N, 1] on the site weights w for the phase of the whole spots
+  // (arch.lattice_spotwise_phase): 0 on a spot with a lit site on the
+  // detector's outermost pixels, else the spot's inverse weighted spread in
+  // pixel units. cell: the site's lattice cell around the phase [N, 2].
+  torch::Tensor spotwisePhaseFactors(const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& lit,
+                                     const torch::Tensor& index, const torch::Tensor& cell) const;
   // Lattice shift (position of the lattice centre's spot) [B, 2]: the phase
   // plus the whole pitches the aperture code, the known classes (training),
   // the class probabilities or the coarse centroid imply, first defined first.

@@ -30,6 +30,9 @@ struct TrainOptions {
   // Site weights of the centroid branch: "learned" or "value" (ArchSpec::
   // centroid_weighting; empty: the init model's, else "learned").
   std::string centroid_weighting;
+  // Angle corrections from the pooled features: "on" or "off" (ArchSpec::
+  // feature_corrections; empty: the init model's, else "on").
+  std::string feature_corrections;
   int batch_size = 64;
   int epochs = 20;                  // the learning-rate schedule spans this many epochs
   int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
