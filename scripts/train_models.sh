@@ -15,24 +15,25 @@ DATA="${DATA_DIR:-$WS/models_data}"
 mkdir -p "$DATA" "$ROOT/models"
 
 # sensor, training images, training seed, test seed, epochs, architecture, sigma-calibration seed,
-# centroid weighting, angle correction (maximum degree fitted on the sigma bag; keep: none fitted),
+# centroid weighting, feature corrections (on: angle corrections from the pooled features; off: the angles a
+# smooth function of the spot position), angle correction (maximum degree fitted on the sigma bag; keep: none fitted),
 # inference symmetry (dihedral: estimates averaged over the 8 mirror images; keep: none),
 # anomaly bags added to the training and sigma bags (none, or ANOMALIES:TRAIN_COUNT:TRAIN_SEED:SIGMA_COUNT:SIGMA_SEED,
 # ANOMALIES as for dss generate --anomalies), nominal images from the field's outer band added to the training
 # (none, or COUNT:SEED: dss generate --sampling edge, where the detector edge cuts the spot)
 recipe() {
   case "$1" in
-    thesis_sa) echo "60000 501 502 30 resnet18_w32 503 learned keep dihedral stray_light=1:20000:571:1500:573 12000:581" ;;
-    thesis_ma) echo "60000 511 512 20 resnet10_w16 513 learned keep dihedral stray_light=1:20000:561:1500:563 none" ;;
-    wide_ma) echo "24000 521 522 5 resnet10_w16 523 value 16 keep stray_light=1:4000:591:1500:593 none" ;;
-    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned keep dihedral none none" ;;
+    thesis_sa) echo "60000 501 502 30 resnet18_w32 503 learned on keep dihedral stray_light=1:20000:571:1500:573 12000:581" ;;
+    thesis_ma) echo "60000 511 512 20 resnet10_w16 513 learned on keep dihedral stray_light=1:20000:561:1500:563 none" ;;
+    wide_ma) echo "24000 521 522 5 resnet10_w16 523 intensity off 16 keep stray_light=1:4000:591:1500:593 none" ;;
+    thesis_sa_t50) echo "40000 541 542 36 resnet10_w16 543 learned on keep dihedral none none" ;;
     *) echo "unknown sensor '$1'" >&2; exit 2 ;;
   esac
 }
 
 for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
   for s in $sensor; do
-    read -r count train_seed test_seed epochs arch sigma_seed weighting correction symmetry anomaly edge \
+    read -r count train_seed test_seed epochs arch sigma_seed weighting features correction symmetry anomaly edge \
       <<<"$(recipe "$s")"
     cfg="$ROOT/config/sensors/$s.yaml" train="$DATA/$s.train.bag" test="$DATA/$s.test.bag"
     sigma="$DATA/$s.sigma.bag"
@@ -56,6 +57,6 @@ for sensor in "${@:-thesis_sa thesis_ma wide_ma thesis_sa_t50}"; do
       train="$train $extra"
     fi
     train_and_evaluate "$s" "$train" "$test" "$sigma" "$epochs" "$arch" "$correction" "$symmetry" \
-      --centroid-weighting "$weighting"
+      --centroid-weighting "$weighting" --feature-corrections "$features"
   done
 done

@@ -164,7 +164,8 @@ TEST(Sscnn, SiteSigmaLawScalesTheConstantPerImage) {
 }
 
 // Untrained, the centroid branch is the plain centre of the lit sites
-// (learned weights) or their intensity-weighted centroid (value weighting),
+// (learned weights) or their intensity-weighted centroid (value weighting,
+// and intensity weighting, which stays so whatever the branch's weights),
 // which the linear prior maps to the angles; the sparse and dense forward
 // passes agree, and the choice survives the model file.
 TEST(Sscnn, CentroidWeightingStartsAsPlainOrIntensityWeightedCentroid) {
@@ -177,6 +178,10 @@ TEST(Sscnn, CentroidWeightingStartsAsPlainOrIntensityWeightedCentroid) {
             CentroidWeighting::kValue);
   EXPECT_EQ(deserializeModel(serializeModel(plain), "plain", &c).meta.arch.centroid_weighting,
             CentroidWeighting::kLearned);
+  arch.centroid_weighting = CentroidWeighting::kIntensity;
+  const Model intensity = createModel(c, arch, 4);
+  EXPECT_EQ(deserializeModel(serializeModel(intensity), "intensity", &c).meta.arch.centroid_weighting,
+            CentroidWeighting::kIntensity);
 
   torch::NoGradGuard no_grad;
   const auto input = encodeImages(imageList(), plain.meta.input, torch::kDouble);
@@ -199,6 +204,15 @@ TEST(Sscnn, CentroidWeightingStartsAsPlainOrIntensityWeightedCentroid) {
   EXPECT_LT((weighted_angles - weighted_centroid * slope).abs().max().item<double>(), 1e-7);
   const auto dense = encodeImagesDense({images()[0].image}, weighted.meta.input).to(torch::kDouble);
   EXPECT_LT((weighted.net->forwardDense(dense).angles[0] - weighted_angles[0]).abs().max().item<double>(), 1e-9);
+
+  intensity.net->to(torch::kDouble);
+  for (const Model* m : {&weighted, &intensity})
+    for (auto& p : m->net->named_parameters())
+      if (p.key().rfind("centroid_conv", 0) == 0) p.value().normal_(0.0, 1.0);
+  EXPECT_GT((weighted.net->forward(input).angles - weighted_angles).abs().max().item<double>(), 1e-6);
+  const auto intensity_angles = intensity.net->forward(input).angles;
+  EXPECT_LT((intensity_angles - weighted_angles).abs().max().item<double>(), 1e-12);
+  EXPECT_LT((intensity.net->forwardDense(dense).angles[0] - weighted_angles[0]).abs().max().item<double>(), 1e-9);
 }
 
 // With feature corrections off the angles are a function of the spot

@@ -35,8 +35,9 @@ int runTrain(int argc, char** argv) {
            "architecture (" + archPresetList() + "; default: the --init model's, else " + defaultArchName() + ")", "",
            false, false},
           {"centroid-weighting", "W",
-           "site weights of the centroid branch: learned (equal at the start) or value (the intensity-weighted "
-           "centroid at the start); default: the --init model's, else learned",
+           "site weights of the centroid branch: learned (equal at the start), value (the intensity-weighted "
+           "centroid at the start) or intensity (the intensity-weighted centroid, nothing learned); default: the "
+           "--init model's, else learned",
            "", false, false},
           {"feature-corrections", "ON_OFF",
            "angle corrections from the pooled backbone features (on), or the angles a smooth function of the spot "

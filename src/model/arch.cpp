@@ -5,13 +5,20 @@
 namespace dss {
 
 const char* centroidWeightingName(CentroidWeighting weighting) {
-  return weighting == CentroidWeighting::kValue ? "value" : "learned";
+  switch (weighting) {
+    case CentroidWeighting::kValue:
+      return "value";
+    case CentroidWeighting::kIntensity:
+      return "intensity";
+    default:
+      return "learned";
+  }
 }
 
 CentroidWeighting parseCentroidWeighting(const std::string& name) {
-  for (const auto w : {CentroidWeighting::kLearned, CentroidWeighting::kValue})
+  for (const auto w : {CentroidWeighting::kLearned, CentroidWeighting::kValue, CentroidWeighting::kIntensity})
     if (name == centroidWeightingName(w)) return w;
-  throw std::invalid_argument("centroid weighting must be 'learned' or 'value', not '" + name + "'");
+  throw std::invalid_argument("centroid weighting must be 'learned', 'value' or 'intensity', not '" + name + "'");
 }
 
 void ArchSpec::validate() const {

@@ -288,6 +288,7 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
 }
 
 torch::Tensor SscnnNetImpl::centroidWeights(const torch::Tensor& logits, const torch::Tensor& value) const {
+  if (arch_.centroid_weighting == CentroidWeighting::kIntensity) return value;
   const torch::Tensor learned = torch::softplus(logits);  // log(2) where the branch outputs 0 (its start)
   if (arch_.centroid_weighting == CentroidWeighting::kLearned) return learned;
   return value * learned * (1.0 / std::log(2.0));
@@ -457,10 +458,13 @@ SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor
     // (translation-equivariant: no position-dependent bias); centroid =
     // sum(w xy) / sum(w) per image.
     const torch::Tensor value = input.features.slice(1, 0, 1).contiguous();
-    SparseTensor c = centroid_conv1_->forward(input.with(value));
-    c = centroid_conv2_->forward(c.with(torch::relu(c.features)));
+    torch::Tensor logits;  // of the learned weights (none with intensity weights)
+    if (arch_.centroid_weighting != CentroidWeighting::kIntensity) {
+      SparseTensor c = centroid_conv1_->forward(input.with(value));
+      logits = centroid_conv2_->forward(c.with(torch::relu(c.features))).features;
+    }
     // Every site of the sparse input is lit.
-    spots = readSpots(centroidWeights(c.features, value), input.features.slice(1, 1, 3),
+    spots = readSpots(centroidWeights(logits, value), input.features.slice(1, 1, 3),
                       torch::ones({input.features.size(0)}, input.features.options()), sparse::batchIndex(*input.sites),
                       input.sites->batchSize());
   }
@@ -478,8 +482,10 @@ SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
     // weight, as in the submanifold branch.
     const auto value = input.slice(1, 0, 1);
     const auto active = (value != 0).to(value.scalar_type());
-    const auto c = torch::relu(centroid_conv1_->forwardDense(value)) * active;
-    const auto w = centroidWeights(centroid_conv2_->forwardDense(c), value) * active;
+    torch::Tensor logits;
+    if (arch_.centroid_weighting != CentroidWeighting::kIntensity)
+      logits = centroid_conv2_->forwardDense(torch::relu(centroid_conv1_->forwardDense(value)) * active);
+    const auto w = centroidWeights(logits, value) * active;
     // Every pixel as a site (inactive ones weigh 0), in the sparse branch's layout.
     const auto batch = input.size(0), pixels = input.size(2) * input.size(3);
     const auto index = torch::arange(batch, torch::TensorOptions().dtype(torch::kLong)).repeat_interleave(pixels);

@@ -15,11 +15,12 @@ namespace dss {
 enum class LatticeResolve { kCentroid, kClass, kCode };
 
 // How the centroid branch weighs each lit site: by a learned function of its
-// neighbourhood alone (equal weights at the start), or by its value times a
+// neighbourhood alone (equal weights at the start), by its value times a
 // learned factor (1 at the start: the intensity-weighted centroid, the
-// baseline's). A weight that does not vanish at the threshold makes pixels
-// flickering across it jump the centroid.
-enum class CentroidWeighting { kLearned, kValue };
+// baseline's), or by its value alone (nothing learned: on wide_ma the learned
+// factor cost accuracy under stray light). A weight that does not vanish at
+// the threshold makes pixels flickering across it jump the centroid.
+enum class CentroidWeighting { kLearned, kValue, kIntensity };
 const char* centroidWeightingName(CentroidWeighting weighting);
 // Throws std::invalid_argument for a name other than "learned" or "value".
 CentroidWeighting parseCentroidWeighting(const std::string& name);

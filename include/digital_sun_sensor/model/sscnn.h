@@ -101,7 +101,8 @@ class SscnnNetImpl : public torch::nn::Module {
     std::array<torch::Tensor, 2> contradictions;
   };
   // Site weights of the centroid branch (arch.centroid_weighting) from its
-  // output logits and the sites' values, [N, 1] each.
+  // output logits (undefined with intensity weights) and the sites' values,
+  // [N, 1] each.
   torch::Tensor centroidWeights(const torch::Tensor& logits, const torch::Tensor& value) const;
   SpotReading readSpots(const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& lit,
                         const torch::Tensor& index, std::int64_t batch) const;
