@@ -22,7 +22,7 @@ enum class LatticeResolve { kCentroid, kClass, kCode };
 // the threshold makes pixels flickering across it jump the centroid.
 enum class CentroidWeighting { kLearned, kValue, kIntensity };
 const char* centroidWeightingName(CentroidWeighting weighting);
-// Throws std::invalid_argument for a name other than "learned" or "value".
+// Throws std::invalid_argument for a name other than "learned", "value" or "intensity".
 CentroidWeighting parseCentroidWeighting(const std::string& name);
 
 struct ArchSpec {

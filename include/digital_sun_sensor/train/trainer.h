@@ -27,7 +27,7 @@ struct TrainOptions {
   // Start from this model file's weights (fine-tuning, e.g. on anomalies)
   // instead of fresh ones; it must suit the sensor and, if given, `arch`.
   std::string init_model;
-  // Site weights of the centroid branch: "learned" or "value" (ArchSpec::
+  // Site weights of the centroid branch: "learned", "value" or "intensity" (ArchSpec::
   // centroid_weighting; empty: the init model's, else "learned").
   std::string centroid_weighting;
   // Angle corrections from the pooled features: "on" or "off" (ArchSpec::
