@@ -363,8 +363,9 @@ torch::Tensor SscnnNetImpl::spotwisePhaseFactors(const torch::Tensor& w, const t
       static_cast<std::int64_t>(2 * std::ceil(1.0 / std::min(arch_.lattice_pitch_x, arch_.lattice_pitch_y) + 2.0) + 1);
   const torch::Tensor cells = cell.to(torch::kLong) + span / 2;
   const torch::Tensor key = (index * span + cells.select(1, 0)) * span + cells.select(1, 1);
-  const torch::Tensor spot = std::get<1>(torch::_unique(key, /*sorted=*/false, /*return_inverse=*/true));
-  const std::int64_t spots = spot.numel() > 0 ? spot.max().item<std::int64_t>() + 1 : 0;
+  const auto unique = torch::_unique(key, /*sorted=*/false, /*return_inverse=*/true);
+  const torch::Tensor& spot = std::get<1>(unique);  // the site's spot, 0 .. spots - 1
+  const std::int64_t spots = std::get<0>(unique).size(0);
   auto per_spot = [&](const torch::Tensor& values) {
     return torch::zeros({spots, values.size(1)}, values.options()).index_add(0, spot, values);
   };
