@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Load benchmark of the estimator pipeline (README "Pipeline load"): for each
+# Load benchmark of the estimator pipeline (docs/pipeline.md, "Load"): for each
 # case, launch/bench_pipeline.launch publishes pre-rendered images at the rate
 # and prints one JSON line (rate in/out, latency p50/p99 from image stamp to
 # /sun_sensor/angles, drops, estimator memory). Cases run one after another.

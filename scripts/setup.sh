@@ -13,7 +13,7 @@ PACKAGES=(
   # toolchain
   build-essential cmake pkg-config git
   # ROS 1 core, build, tools
-  ros-core-dev catkin rosbash rosout python3-roslaunch python3-rostopic
+  ros-core-dev catkin rosbash rosout python3-roslaunch python3-rostopic python3-yaml
   python3-rosbag python3-rostest librostest-dev python3-rosunit python3-catkin-pkg
   libtf2-ros-dev tf2-tools libtf2-geometry-msgs-dev libcv-bridge-dev librosbag-dev
   libdiagnostic-updater-dev libdiagnostic-msgs-dev libnodelet-dev libnodeletlib-dev

@@ -1,7 +1,21 @@
 #!/usr/bin/env bash
 # Setup, build, every test (gtest + rostest), gated on catkin_test_results.
 # Last line: "N passed, N failed".
+#   scripts/test.sh          every test (what CI runs)
+#   scripts/test.sh fast     the unit tests alone: no ROS master, no trained
+#                            models pinned, no dss subprocesses (under 2 minutes)
 set -uo pipefail
+
+# The unit-test executables of "fast" (test/CMakeLists.txt).
+FAST_TESTS=(test_core test_baseline test_nn)
+targets=(run_tests)
+if [[ "${1:-}" == fast ]]; then
+  targets=()
+  for t in "${FAST_TESTS[@]}"; do targets+=("run_tests_digital_sun_sensor_gtest_$t"); done
+elif [[ $# -gt 0 ]]; then
+  echo "usage: scripts/test.sh [fast]" >&2
+  exit 2
+fi
 
 REPO_DIR="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 export DSS_WS="${DSS_WS:-$REPO_DIR/.ws}"
@@ -23,7 +37,7 @@ source devel/setup.bash
 set -u
 export ROS_HOME="${ROS_HOME:-$DSS_WS/ros_home}"
 rm -rf build/test_results
-/usr/bin/python3 /usr/bin/catkin_make run_tests -DPYTHON_EXECUTABLE=/usr/bin/python3 -j"$(nproc)" 2>&1 \
+/usr/bin/python3 /usr/bin/catkin_make "${targets[@]}" -DPYTHON_EXECUTABLE=/usr/bin/python3 -j"$(nproc)" 2>&1 \
   | grep -E "^\[ *(RUN|OK|FAILED|PASSED) |^\[==========\]|FAILURE|Error|error:|\[ROSTEST\]|SUMMARY|^ \* RESULT|^ \* TESTS|^ \* ERRORS|^ \* FAILURES" || true
 
 summary="$(catkin_test_results build/test_results 2>&1)"

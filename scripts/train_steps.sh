@@ -1,6 +1,7 @@
 # Sourced by train_models.sh and train_published.sh (after dss_env.sh, with
 # DATA set): the steps every shipped model goes through once its bags exist.
 #   train_and_evaluate NAME TRAIN_BAGS TEST_BAG SIGMA_BAGS EPOCHS ARCH CORRECTION SYMMETRY [DSS TRAIN OPTION...]
+# (scripts/train_models.sh passes the recipe's learning rate, seed and head options)
 # TRAIN_BAGS and SIGMA_BAGS: one bag, or several separated by spaces (e.g. a
 # nominal bag and one with an anomaly). Trains models/NAME.dssmodel unless it
 # exists (resuming DATA/NAME.ckpt when present), fits its angle correction
@@ -24,7 +25,7 @@ train_and_evaluate() {
     local resume=()
     [ -f "$ckpt" ] && resume=(--resume "$ckpt")
     "$DSS" train "${train_data[@]}" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" "$@" \
-      --lr 5e-4 --seed 1 "${resume[@]}" | tee "$DATA/$name.train.json"
+      "${resume[@]}" | tee "$DATA/$name.train.json"
     # smooth angle correction, sigma (level, or a constant per axis) and the input envelope from fresh images
     "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
       --correction-degree "$correction" | tee "$DATA/$name.sigma.json"

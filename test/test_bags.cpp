@@ -18,6 +18,9 @@
 #include <sstream>
 #include <string>
 
+#include "digital_sun_sensor/common/estimate_status.h"
+#include "digital_sun_sensor/ros/bag_io.h"
+
 namespace {
 
 struct Result {
@@ -165,7 +168,7 @@ std::string lastLine(const std::string& output, const std::string& prefix) {
 }
 
 // Calibrate on one bag, evaluate on a disjoint bag of the same simulated
-// sensor (same seed, later offset): one JSON line with every DESIGN key.
+// sensor (same seed, later offset): one JSON line with every evaluation key of docs/design.md.
 TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
   const std::string cal = tmp("cal.bag"), test = tmp("test.bag"), calib = tmp("calib.yaml"), csv = tmp("eval.csv");
   ASSERT_EQ(run("generate --sensor " + kSensor +
@@ -313,3 +316,75 @@ TEST(Bench, InferAndTrainPrintOneJsonLine) {
 }
 
 }  // namespace
+
+// The message's STATUS_* constants and the core's codes are one list.
+TEST(Messages, StatusConstantsAreTheCoreCodes) {
+  using digital_sun_sensor::SunAngles;
+  const std::vector<std::string> message = {SunAngles::STATUS_NO_SUN,
+                                            SunAngles::STATUS_SATURATED,
+                                            SunAngles::STATUS_OUT_OF_DISTRIBUTION,
+                                            SunAngles::STATUS_AMBIGUOUS_APERTURE,
+                                            SunAngles::STATUS_OUTSIDE_FOV,
+                                            SunAngles::STATUS_NOT_FINITE,
+                                            SunAngles::STATUS_SUN_BEHIND_SENSOR,
+                                            SunAngles::STATUS_BAD_IMAGE,
+                                            SunAngles::STATUS_NO_MATCH,
+                                            SunAngles::STATUS_INCONSISTENT_SPOTS,
+                                            SunAngles::STATUS_SPOT_AT_EDGE,
+                                            SunAngles::STATUS_ESTIMATOR_ERROR,
+                                            SunAngles::STATUS_NO_ESTIMATOR};
+  const std::vector<std::string> core(std::begin(dss::status::kAll), std::end(dss::status::kAll));
+  EXPECT_EQ(message, core);
+  EXPECT_EQ(dss::status::statusCode("bad_image: 256x256"), SunAngles::STATUS_BAD_IMAGE);
+  EXPECT_EQ(dss::status::statusCode(SunAngles::STATUS_NO_SUN), SunAngles::STATUS_NO_SUN);
+}
+
+// Bags recorded before SunAngles had its constants (another MD5 sum, the same
+// fields) still give their truth; a recorded type with other fields does not.
+TEST(Messages, TruthFromBagsOfTheOlderSunAnglesIsRead) {
+  using digital_sun_sensor::SunAngles;
+  const std::string definition = ros::message_traits::Definition<SunAngles>::value();
+  std::string old_definition;  // the current text without the constant lines
+  std::istringstream lines(definition);
+  for (std::string line; std::getline(lines, line);)
+    if (line.rfind("string STATUS_", 0) != 0) old_definition += line + "\n";
+  for (const bool same_fields : {true, false}) {
+    const std::string path = "/tmp/dss_test_old_truth_" + std::to_string(same_fields) + ".bag";
+    {
+      rosbag::Bag bag(path, rosbag::bagmode::Write);
+      sensor_msgs::Image image;
+      image.header.stamp = ros::Time(1.0);
+      image.encoding = "mono8";
+      image.width = image.height = image.step = 4;
+      image.data.assign(16, 7);
+      bag.write("/sun_sensor/image", image.header.stamp, image);
+      SunAngles truth;
+      truth.header.stamp = image.header.stamp;
+      truth.alpha = 0.01;
+      truth.beta = -0.02;
+      truth.valid = true;
+      truth.source = "truth";
+      auto header = boost::make_shared<ros::M_string>();
+      (*header)["type"] = "digital_sun_sensor/SunAngles";
+      (*header)["md5sum"] = "0123456789abcdef0123456789abcdef";
+      (*header)["message_definition"] = same_fields ? old_definition : "float64 gamma\n" + old_definition;
+      bag.write("/sun_sensor/truth", truth.header.stamp, truth, header);
+    }
+    std::vector<dss::LabelledImage> read;
+    const dss::BagReadStats stats = dss::DatasetBagReader({path}).forEach([&](const dss::LabelledImage& item) {
+      read.push_back(item);
+      return true;
+    });
+    if (same_fields) {
+      ASSERT_EQ(read.size(), 1u);
+      EXPECT_EQ(read[0].truth.alpha, 0.01);
+      EXPECT_EQ(read[0].truth.beta, -0.02);
+      EXPECT_TRUE(read[0].truth.valid);
+      EXPECT_EQ(read[0].truth.source, "truth");
+    } else {
+      EXPECT_TRUE(read.empty());
+      EXPECT_EQ(stats.unmatched_images, 1u);
+    }
+    std::remove(path.c_str());
+  }
+}

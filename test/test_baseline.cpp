@@ -10,13 +10,12 @@
 #include "digital_sun_sensor/baseline/gaussian_fit.h"
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/spike_filter.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
 
 SensorConfig shipped(const std::string& name, const std::vector<std::string>& overrides = {}) {
   return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml", overrides);
@@ -65,7 +64,8 @@ TEST(Centroid, NoiseFreeErrorWellBelowOneHundredthPixel) {
   for (int i = 0; i < 20; ++i) {
     ImageTruth truth;
     // Inside +-3.5 deg the whole spot, halo included, stays on the detector.
-    const Eigen::Vector3d sun = sunVectorFromAngles(rng.uniform(-3.5, 3.5) * kDeg, rng.uniform(-3.5, 3.5) * kDeg);
+    const Eigen::Vector3d sun =
+        sunVectorFromAngles(rng.uniform(-3.5, 3.5) * kRadPerDeg, rng.uniform(-3.5, 3.5) * kRadPerDeg);
     const cv::Mat image = renderer.render(sun, 1, &truth, options);
     const auto spots = extractSpots(image, extraction);
     ASSERT_EQ(spots.size(), 1u);
@@ -99,8 +99,8 @@ TEST(Association, RecoversAperturesOnEveryMask) {
       // tell (the published SSCNN takes it as an input); keep to the
       // unambiguous band there.
       const double alpha_max = name == "thesis_ca" ? 1.0 : config.fov.alpha_max_deg;
-      const double alpha = rng.uniform(-1.0, 1.0) * alpha_max * kDeg;
-      const double beta = rng.uniform(-1.0, 1.0) * config.fov.beta_max_deg * kDeg;
+      const double alpha = rng.uniform(-1.0, 1.0) * alpha_max * kRadPerDeg;
+      const double beta = rng.uniform(-1.0, 1.0) * config.fov.beta_max_deg * kRadPerDeg;
       const Eigen::Vector3d sun = sunVectorFromAngles(alpha, beta);
       std::vector<DetectedSpot> spots;
       std::vector<int> truth;
@@ -132,8 +132,8 @@ TEST(Association, RecoversAperturesOnEveryMask) {
       ++trials;
       const auto a = associateSpots(geometry, spots, options);
       if (!a || a->observations.size() != whole) {
-        std::printf("%s a=%.3f b=%.3f spots %zu assoc %d obs %zu\n", name.c_str(), alpha / kDeg, beta / kDeg,
-                    spots.size(), !!a, a ? a->observations.size() : 0);
+        std::printf("%s a=%.3f b=%.3f spots %zu assoc %d obs %zu\n", name.c_str(), alpha / kRadPerDeg,
+                    beta / kRadPerDeg, spots.size(), !!a, a ? a->observations.size() : 0);
         continue;
       }
       bool right = true;
@@ -190,8 +190,8 @@ TEST(CalibrationFit, RecoversAsBuiltErrors) {
                                                   calibration.geometry.tilt_y_rad)
                                          .col(2);
   // ~0.2 um of height noise per aperture over a 530 um baseline: ~0.03 deg.
-  const double tilt_true_deg = std::acos(normal_true.z()) / kDeg;
-  const double tilt_error_deg = std::acos(std::min(1.0, normal_true.dot(normal_fit))) / kDeg;
+  const double tilt_true_deg = std::acos(normal_true.z()) / kRadPerDeg;
+  const double tilt_error_deg = std::acos(std::min(1.0, normal_true.dot(normal_fit))) / kRadPerDeg;
   std::printf("tilt %.3f deg, error %.4f deg\n", tilt_true_deg, tilt_error_deg);
   EXPECT_GT(tilt_true_deg, 0.1);
   EXPECT_LT(tilt_error_deg, 0.1);

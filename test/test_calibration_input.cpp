@@ -11,13 +11,15 @@
 #include <cmath>
 #include <mutex>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/renderer.h"
+
+using dss::kRadPerDeg;
 
 namespace {
 
 using digital_sun_sensor::SunAngles;
-constexpr double kRad = M_PI / 180.0;
 
 std::mutex mutex;
 std::vector<SunAngles::ConstPtr> answers;
@@ -40,7 +42,8 @@ sensor_msgs::ImagePtr renderedImage(double alpha_deg, double beta_deg) {
       dss::loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml");
   const dss::Renderer renderer(dss::SensorInstance::draw(config, 1));
   dss::ImageTruth truth;
-  const cv::Mat image = renderer.render(dss::sunVectorFromAngles(alpha_deg * kRad, beta_deg * kRad), 3, &truth);
+  const cv::Mat image =
+      renderer.render(dss::sunVectorFromAngles(alpha_deg * kRadPerDeg, beta_deg * kRadPerDeg), 3, &truth);
   auto msg = makeImage("mono8", image.cols, image.rows, 0);
   for (int r = 0; r < image.rows; ++r) std::memcpy(&msg->data[r * msg->step], image.ptr(r), image.cols);
   return msg;
@@ -121,16 +124,16 @@ TEST(CalibrationNode, SurvivesMalformedImages) {
   struct Case {
     const char* what;
     sensor_msgs::ImagePtr image;
-    const char* status_prefix;
+    std::string status_prefix;
   };
   auto short_buffer = makeImage("mono8", 512, 512, 0);
   short_buffer->data.resize(1000);
   const Case cases[] = {
-      {"wrong encoding", makeImage("rgb8", 512, 512, 0), "bad_image"},
-      {"size unlike the sensor", makeImage("mono8", 256, 256, 0), "bad_image"},
-      {"short data buffer", short_buffer, "bad_image"},
-      {"all zero", makeImage("mono8", 512, 512, 0), "no_sun"},
-      {"all saturated", makeImage("mono8", 512, 512, 255), "saturated"},
+      {"wrong encoding", makeImage("rgb8", 512, 512, 0), digital_sun_sensor::SunAngles::STATUS_BAD_IMAGE},
+      {"size unlike the sensor", makeImage("mono8", 256, 256, 0), digital_sun_sensor::SunAngles::STATUS_BAD_IMAGE},
+      {"short data buffer", short_buffer, digital_sun_sensor::SunAngles::STATUS_BAD_IMAGE},
+      {"all zero", makeImage("mono8", 512, 512, 0), digital_sun_sensor::SunAngles::STATUS_NO_SUN},
+      {"all saturated", makeImage("mono8", 512, 512, 255), digital_sun_sensor::SunAngles::STATUS_SATURATED},
   };
   for (const Case& c : cases) {
     const SunAngles::ConstPtr answer = client.ask(c.image);
@@ -143,8 +146,8 @@ TEST(CalibrationNode, SurvivesMalformedImages) {
   const SunAngles::ConstPtr good = client.ask(renderedImage(1.0, -0.5));
   ASSERT_TRUE(good) << "no answer to a good image after the malformed ones";
   EXPECT_TRUE(good->valid) << good->status;
-  EXPECT_NEAR(good->alpha, 1.0 * kRad, 0.01 * kRad);
-  EXPECT_NEAR(good->beta, -0.5 * kRad, 0.01 * kRad);
+  EXPECT_NEAR(good->alpha, 1.0 * kRadPerDeg, 0.01 * kRadPerDeg);
+  EXPECT_NEAR(good->beta, -0.5 * kRadPerDeg, 0.01 * kRadPerDeg);
   const auto status = latestStatus("sun_sensor/calibration");
   EXPECT_EQ(value(status, "bad images"), "3");
   EXPECT_EQ(value(status, "images processed"), "6");
@@ -158,7 +161,7 @@ TEST(CalibrationNode, WithoutModelOrCalibrationAnswersInvalid) {
   const SunAngles::ConstPtr answer = client.ask(renderedImage(0.5, 0.5));
   ASSERT_TRUE(answer);
   EXPECT_FALSE(answer->valid);
-  EXPECT_EQ(answer->status, "no_estimator");
+  EXPECT_EQ(answer->status, digital_sun_sensor::SunAngles::STATUS_NO_ESTIMATOR);
   EXPECT_EQ(answer->source, "none");
   const auto status = latestStatus("none/sun_sensor/calibration");
   EXPECT_EQ(status.level, diagnostic_msgs::DiagnosticStatus::ERROR) << status.message;
@@ -176,8 +179,8 @@ TEST(CalibrationNode, InferenceSymmetryNoneEstimatesTheImageAlone) {
   ASSERT_TRUE(a && b);
   ASSERT_TRUE(a->valid && b->valid) << a->status << " / " << b->status;
   // Both right; not the same number, since one is the mean over 8 mirror images.
-  EXPECT_NEAR(b->alpha, -2.0 * kRad, 0.01 * kRad);
-  EXPECT_NEAR(b->beta, 1.5 * kRad, 0.01 * kRad);
+  EXPECT_NEAR(b->alpha, -2.0 * kRadPerDeg, 0.01 * kRadPerDeg);
+  EXPECT_NEAR(b->beta, 1.5 * kRadPerDeg, 0.01 * kRadPerDeg);
   EXPECT_TRUE(a->alpha != b->alpha || a->beta != b->beta);
   EXPECT_EQ(value(latestStatus("sun_sensor/calibration"), "inference symmetry"), "dihedral");
   EXPECT_EQ(value(latestStatus("alone/sun_sensor/calibration"), "inference symmetry"), "none");

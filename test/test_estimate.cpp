@@ -12,6 +12,7 @@
 #include "digital_sun_sensor/baseline/calibration.h"
 #include "digital_sun_sensor/baseline/spot_extraction.h"
 #include "digital_sun_sensor/common/spike_filter.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/eval/uncertainty.h"
@@ -24,8 +25,6 @@
 namespace dss {
 namespace {
 
-constexpr double kRad = M_PI / 180.0;
-
 SensorConfig shipped(const std::string& name) {
   return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml");
 }
@@ -35,9 +34,9 @@ std::string calibrationPath() { return std::string(DSS_SOURCE_DIR) + "/models/th
 
 SunEstimate validEstimate(double alpha_deg, double beta_deg, double sigma_deg) {
   SunEstimate e;
-  e.alpha_rad = alpha_deg * kRad;
-  e.beta_rad = beta_deg * kRad;
-  const double var = std::pow(sigma_deg * kRad, 2);
+  e.alpha_rad = alpha_deg * kRadPerDeg;
+  e.beta_rad = beta_deg * kRadPerDeg;
+  const double var = std::pow(sigma_deg * kRadPerDeg, 2);
   e.covariance = {var, 0.0, 0.0, var};
   e.valid = true;
   return e;
@@ -92,8 +91,9 @@ TEST(SpikeFilter, HotPixelsInARenderedSpotAreRepairedAndItsLightIsNot) {
   std::mt19937 rng(11);
   int natural = 0;
   for (int i = 0; i < 4; ++i) {
-    const cv::Mat clean = renderer.render(sunVectorFromAngles((12.0 - 9.0 * i) * kRad, (7.0 * i - 20.0) * kRad),
-                                          300 + i, nullptr, RenderOptions{});
+    const cv::Mat clean =
+        renderer.render(sunVectorFromAngles((12.0 - 9.0 * i) * kRadPerDeg, (7.0 * i - 20.0) * kRadPerDeg), 300 + i,
+                        nullptr, RenderOptions{});
     int repaired = 0;
     repairSpikes(clean, margins, &repaired);
     natural += repaired;

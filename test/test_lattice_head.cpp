@@ -8,6 +8,7 @@
 #include <opencv2/core.hpp>
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
@@ -18,8 +19,6 @@
 
 namespace dss {
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
 
 SensorConfig shipped(const std::string& name) {
   return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml");
@@ -106,7 +105,7 @@ TEST(LatticeHead, ShiftStaysContinuousWhileSpotsLeaveTheDetector) {
   const double slope = sxy / sxx;
   EXPECT_LT(slope, 0.0);  // the spot moves against the sun
   for (std::size_t k = 0; k < shifts.size(); ++k)
-    EXPECT_NEAR(predictions[k].alpha_rad, slope * shifts[k], 0.003 * kDeg) << "shift " << shifts[k] << " px";
+    EXPECT_NEAR(predictions[k].alpha_rad, slope * shifts[k], 0.003 * kRadPerDeg) << "shift " << shifts[k] << " px";
 }
 
 // A column of spots cut by the detector edge: its centroids are pulled inward,
@@ -164,8 +163,8 @@ TEST(LatticeHead, PhaseOfWholeSpotsIgnoresSpotsCutByTheEdge) {
     worst_on = std::max(worst_on, std::abs(on[k].alpha_rad - slope * shifts[k]));
     worst_off = std::max(worst_off, std::abs(off[k].alpha_rad - slope * shifts[k]));
   }
-  EXPECT_LT(worst_on, 0.002 * kDeg);
-  EXPECT_GT(worst_off, 0.004 * kDeg);  // the bias the whole-spot phase removes
+  EXPECT_LT(worst_on, 0.002 * kRadPerDeg);
+  EXPECT_GT(worst_off, 0.004 * kRadPerDeg);  // the bias the whole-spot phase removes
 }
 
 // thesis_ma with a column of spots on the detector edge and the other two
@@ -187,9 +186,9 @@ TEST(LatticeHead, SpotPresenceResolvesPitchesTheCentroidWeightsWrongly) {
       equal.push_back(2.5);
     }
   const auto p = m.predict({drawSpots(c, spots, unequal), drawSpots(c, spots, equal)});
-  const double pitch_deg = std::atan(265.05 / 5000.0) / kDeg;
-  EXPECT_NEAR(p[0].alpha_rad, p[1].alpha_rad, 0.1 * pitch_deg * kDeg);
-  EXPECT_NEAR(p[0].beta_rad, p[1].beta_rad, 0.1 * pitch_deg * kDeg);
+  const double pitch_deg = std::atan(265.05 / 5000.0) / kRadPerDeg;
+  EXPECT_NEAR(p[0].alpha_rad, p[1].alpha_rad, 0.1 * pitch_deg * kRadPerDeg);
+  EXPECT_NEAR(p[0].beta_rad, p[1].beta_rad, 0.1 * pitch_deg * kRadPerDeg);
 }
 
 // wide_ma images of ideal spots where the nominal geometry puts them for
@@ -205,7 +204,7 @@ CodedImages drawCodedSpots(const SensorConfig& c, const std::vector<std::pair<do
   const MaskGeometry nominal = MaskGeometry::nominalOf(c);
   CodedImages out;
   for (const auto& [alpha, beta] : angles_deg) {
-    const Eigen::Vector3d sun = sunVectorFromAngles(alpha * kDeg, beta * kDeg);
+    const Eigen::Vector3d sun = sunVectorFromAngles(alpha * kRadPerDeg, beta * kRadPerDeg);
     std::vector<Eigen::Vector2d> spots;
     std::vector<double> sigmas;
     int nearest = -1;
@@ -249,8 +248,8 @@ TEST(LatticeHead, CodedLatticeWithGeometricPriorRecoversWideAngles) {
     const auto predictions = m.decode(out, *input.sites);
     for (std::size_t k = 0; k < drawn.images.size(); ++k) {
       SCOPED_TRACE("image " + std::to_string(k) + (classes_known ? ", true class" : ", aperture code"));
-      EXPECT_NEAR(predictions[k].alpha_rad / kDeg, angles_deg[k].first, 0.025);
-      EXPECT_NEAR(predictions[k].beta_rad / kDeg, angles_deg[k].second, 0.025);
+      EXPECT_NEAR(predictions[k].alpha_rad / kRadPerDeg, angles_deg[k].first, 0.025);
+      EXPECT_NEAR(predictions[k].beta_rad / kRadPerDeg, angles_deg[k].second, 0.025);
       EXPECT_EQ(predictions[k].subfov_class, drawn.classes[k]);
       EXPECT_GE(predictions[k].code_margin, kMinApertureCodeMargin);
     }
@@ -264,7 +263,7 @@ TEST(LatticeHead, CodedLatticeWithGeometricPriorRecoversWideAngles) {
 // variance) and leaves out only spots that touch the edge, and its estimates
 // scatter less over the same noise draws of one expected image. (On 2000
 // nominal test images the untrained head's noise fell from 0.00145 to
-// 0.00111 deg RMS, the baseline's 0.00114; README "Trained models".)
+// 0.00111 deg RMS, the baseline's 0.00114; docs/results/wide_ma.md.)
 TEST(LatticeHead, SpotwisePhaseAveragesTheDetectorNoiseBetter) {
   sparse::configureThreads(1, 1);
   const SensorConfig c = shipped("wide_ma");
@@ -284,7 +283,8 @@ TEST(LatticeHead, SpotwisePhaseAveragesTheDetectorNoiseBetter) {
   std::vector<cv::Mat> noisy;
   for (const auto& [alpha, beta] : angles_deg) {
     ImageTruth truth;
-    const cv::Mat electrons = renderer.expectedElectrons(sunVectorFromAngles(alpha * kDeg, beta * kDeg), &truth);
+    const cv::Mat electrons =
+        renderer.expectedElectrons(sunVectorFromAngles(alpha * kRadPerDeg, beta * kRadPerDeg), &truth);
     for (int draw = 0; draw < kDraws; ++draw) noisy.push_back(renderer.detect(electrons, truth.exposure_s, rng));
   }
   // RMS about each attitude's mean estimate, both axes.
@@ -301,7 +301,7 @@ TEST(LatticeHead, SpotwisePhaseAveragesTheDetectorNoiseBetter) {
         sum2 += std::pow(predictions[first + k].alpha_rad - mean_a, 2) +
                 std::pow(predictions[first + k].beta_rad - mean_b, 2);
     }
-    return std::sqrt(sum2 / (2.0 * predictions.size())) / kDeg;
+    return std::sqrt(sum2 / (2.0 * predictions.size())) / kRadPerDeg;
   };
   const double with_spotwise = scatter_deg(spotwise), with_sums = scatter_deg(summed);
   EXPECT_GT(with_sums, 0.0);

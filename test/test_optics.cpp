@@ -1,16 +1,15 @@
 // Optics against closed forms: Airy far field, geometric shadow, energy
 // conservation, spot centre at h tan(theta) (with and without cover glass).
-#include "digital_sun_sensor/sim/geometry.h"
-#include "digital_sun_sensor/sim/optics.h"
-
 #include <gtest/gtest.h>
 
 #include <cmath>
 
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/optics.h"
+
 namespace dss {
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
 
 OpticalPath monochromatic(double z_um, double lambda_um, double step_um, int grid) {
   OpticalPath p;
@@ -98,7 +97,7 @@ TEST(Optics, EnergyIsConserved) {
   const SpotMap filtered = computeSpotMap(circle(d), Eigen::Vector3d::UnitZ(), p, all);
   EXPECT_NEAR(filtered.total_power_um2 / bare.total_power_um2, 1.0, 0.002);
   // Oblique incidence: power through the aperture scales with cos(theta).
-  const Eigen::Vector3d oblique = sunVectorFromAngles(4.0 * kDeg, -3.0 * kDeg);
+  const Eigen::Vector3d oblique = sunVectorFromAngles(4.0 * kRadPerDeg, -3.0 * kRadPerDeg);
   const SpotMap tilted = computeSpotMap(circle(d), oblique, p, all);
   EXPECT_NEAR(tilted.total_power_um2 / (area * oblique.z()), 1.0, 0.01);
 }
@@ -120,11 +119,11 @@ Eigen::Vector2d centroid(const SpotMap& m) {
 TEST(Optics, SpotCentreAtHeightTimesTangent) {
   // Geometry: the detector hit point of the aperture centre is -h tan(theta).
   const double h = 5000.0;
-  const Eigen::Vector3d sun = sunVectorFromAngles(3.0 * kDeg, -2.0 * kDeg);
+  const Eigen::Vector3d sun = sunVectorFromAngles(3.0 * kRadPerDeg, -2.0 * kRadPerDeg);
   const auto hit = traceToDetector(Eigen::Vector3d(0, 0, h), sun, {});
   ASSERT_TRUE(hit);
-  EXPECT_NEAR(hit->x(), -h * std::tan(3.0 * kDeg), 1e-9);
-  EXPECT_NEAR(hit->y(), h * std::tan(2.0 * kDeg), 1e-9);
+  EXPECT_NEAR(hit->x(), -h * std::tan(3.0 * kRadPerDeg), 1e-9);
+  EXPECT_NEAR(hit->y(), h * std::tan(2.0 * kRadPerDeg), 1e-9);
   // Diffraction: the light's centroid lands there (maps are relative to it),
   // polychromatic, with the solar disk and pixel integration.
   OpticalPath p = monochromatic(h, 0.55, 1.0, 512);
@@ -139,7 +138,7 @@ TEST(Optics, SpotCentreAtHeightTimesTangent) {
 
 TEST(Optics, SpotCentreWithCoverGlassFollowsSnell) {
   const double h = 5000.0, t = 1000.0, n = 1.5;
-  const double theta = 4.0 * kDeg;
+  const double theta = 4.0 * kRadPerDeg;
   const Eigen::Vector3d sun = sunVectorFromAngles(theta, 0.0);
   const auto hit = traceToDetector(Eigen::Vector3d(0, 0, h), sun, {t, n});
   ASSERT_TRUE(hit);
@@ -159,7 +158,7 @@ TEST(Optics, SpotCentreWithCoverGlassFollowsSnell) {
 TEST(Optics, VignettingShiftsCentroidByHalfThicknessTangent) {
   // The mask's two faces clip the beam: the open area's centre moves by
   // t tan(theta) / 2 toward the spot's direction of motion.
-  const double h = 5000.0, t = 30.0, theta = 4.0 * kDeg;
+  const double h = 5000.0, t = 30.0, theta = 4.0 * kRadPerDeg;
   OpticalPath p = monochromatic(h, 0.55, 1.0, 512);
   p.vignetting = true;
   p.mask_thickness_um = t;

@@ -14,10 +14,13 @@
 #include <map>
 #include <mutex>
 
+#include "digital_sun_sensor/common/units.h"
+
+using dss::kDegPerRad;
+
 namespace {
 
 using digital_sun_sensor::SunAngles;
-constexpr double kDeg = 180.0 / M_PI;
 
 std::mutex mutex;
 std::map<std::uint64_t, SunAngles::ConstPtr> truths, estimates;
@@ -94,9 +97,10 @@ TEST(Pipeline, EstimatesMatchTruthVectorAndTf) {
       continue;
     }
     ++valid;
-    const double ea = std::abs(e->alpha - t->second->alpha) * kDeg, eb = std::abs(e->beta - t->second->beta) * kDeg;
-    EXPECT_LT(ea, max_error_deg) << "alpha error at truth (" << t->second->alpha * kDeg << ", "
-                                 << t->second->beta * kDeg << ") deg";
+    const double ea = std::abs(e->alpha - t->second->alpha) * kDegPerRad,
+                 eb = std::abs(e->beta - t->second->beta) * kDegPerRad;
+    EXPECT_LT(ea, max_error_deg) << "alpha error at truth (" << t->second->alpha * kDegPerRad << ", "
+                                 << t->second->beta * kDegPerRad << ") deg";
     EXPECT_LT(eb, max_error_deg);
     sum_error_deg += 0.5 * (ea + eb);
     EXPECT_GT(e->covariance[0], 0.0);

@@ -3,14 +3,13 @@
 
 #include <cmath>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
 
 SensorConfig shipped(const std::string& name, const std::vector<std::string>& overrides = {}) {
   return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml", overrides);
@@ -63,21 +62,21 @@ TEST(Renderer, SpotCentroidAtTruthWithSunDisk) {
   const Renderer r(SensorInstance::nominalOf(c));
   for (auto [a, b] : {std::pair{0.3, 0.2}, {-2.2, 1.9}, {1.7, -2.4}}) {
     ImageTruth t;
-    const cv::Mat e = r.expectedElectrons(sunVectorFromAngles(a * kDeg, b * kDeg), &t);
+    const cv::Mat e = r.expectedElectrons(sunVectorFromAngles(a * kRadPerDeg, b * kRadPerDeg), &t);
     ASSERT_EQ(t.spots.size(), 1u);
-    EXPECT_NEAR(t.spots[0].x_px, -5000.0 * std::tan(a * kDeg) / 1.55, 1e-6);
-    EXPECT_NEAR(t.spots[0].y_px, -5000.0 * std::tan(b * kDeg) / 1.55, 1e-6);
+    EXPECT_NEAR(t.spots[0].x_px, -5000.0 * std::tan(a * kRadPerDeg) / 1.55, 1e-6);
+    EXPECT_NEAR(t.spots[0].y_px, -5000.0 * std::tan(b * kRadPerDeg) / 1.55, 1e-6);
     const Eigen::Vector2d c_px = windowedCentroidPx(e, {t.spots[0].x_px, t.spots[0].y_px}, 100.0);
     EXPECT_NEAR(c_px.x(), t.spots[0].x_px, 0.02) << a << "," << b;
     EXPECT_NEAR(c_px.y(), t.spots[0].y_px, 0.02) << a << "," << b;
-    EXPECT_EQ(t.subfov_class, quadrantClass(a * kDeg, b * kDeg));
+    EXPECT_EQ(t.subfov_class, quadrantClass(a * kRadPerDeg, b * kRadPerDeg));
   }
 }
 
 TEST(Renderer, QuarterTurnOfTheSunRotatesTheImage) {
   const SensorConfig c = shipped("thesis_sa");
   const Renderer r(SensorInstance::nominalOf(c));
-  const Eigen::Vector3d s = sunVectorFromAngles(2.0 * kDeg, 1.0 * kDeg);
+  const Eigen::Vector3d s = sunVectorFromAngles(2.0 * kRadPerDeg, 1.0 * kRadPerDeg);
   const Eigen::Vector3d rotated(-s.y(), s.x(), s.z());  // 90 deg about +z
   const cv::Mat a = r.expectedElectrons(s, nullptr), b = r.expectedElectrons(rotated, nullptr);
   // (x, y) -> (-y, x): pixel (row r, col c) -> (row c, col W-1-r).
@@ -106,7 +105,7 @@ TEST(Renderer, AnomaliesShowUp) {
   // Hot pixels: bright at their fixed sites.
   const SensorConfig hot = shipped("thesis_sa", {"anomalies.hot_pixels.count=20", "threshold.enabled=false"});
   const SensorInstance with_hot = SensorInstance::draw(hot, 3);
-  const cv::Mat img = Renderer(with_hot).render(sunVectorFromAngles(1 * kDeg, 1 * kDeg), 5, nullptr);
+  const cv::Mat img = Renderer(with_hot).render(sunVectorFromAngles(1 * kRadPerDeg, 1 * kRadPerDeg), 5, nullptr);
   int bright = 0;
   for (const auto& hp : with_hot.hot_pixels) bright += img.ptr<std::uint8_t>()[hp.index] > 2 ? 1 : 0;
   EXPECT_GE(bright, 15);
@@ -135,7 +134,7 @@ TEST(Renderer, WideFieldSpotsLeaveTheDetectorAndClassIsNearestAperture) {
   r.expectedElectrons(Eigen::Vector3d::UnitZ(), &t);
   EXPECT_EQ(t.subfov_class, 24);  // centre of the 7 x 7 grid
   ImageTruth tilted;
-  r.expectedElectrons(sunVectorFromAngles(50 * kDeg, -35 * kDeg), &tilted);
+  r.expectedElectrons(sunVectorFromAngles(50 * kRadPerDeg, -35 * kRadPerDeg), &tilted);
   int on = 0;
   for (const auto& s : tilted.spots) on += s.on_detector ? 1 : 0;
   EXPECT_GT(on, 2);
@@ -161,15 +160,15 @@ TEST(Sampling, GridFollowsPublishedProtocol) {
 
 TEST(Sampling, EdgeSamplingStaysInTheOuterBand) {
   const SensorConfig c = shipped("thesis_sa");  // +-4.54 deg
-  const double band_deg = 0.2, limit_rad = (4.54 - band_deg) * kDeg;
+  const double band_deg = 0.2, limit_rad = (4.54 - band_deg) * kRadPerDeg;
   const AttitudeSampler edge(c, SamplingMode::kEdge, 7, band_deg);
   int corner = 0, sides[4] = {0, 0, 0, 0};
   for (std::uint64_t i = 0; i < 2000; ++i) {
     const SunAnglesRad a = anglesFromSunVector(edge.sunVector(i));
     const bool alpha_edge = std::abs(a.alpha) >= limit_rad - 1e-12, beta_edge = std::abs(a.beta) >= limit_rad - 1e-12;
     ASSERT_TRUE(alpha_edge || beta_edge) << "sample " << i << " inside the band's inner border";
-    ASSERT_LE(std::abs(a.alpha), 4.54 * kDeg + 1e-12);
-    ASSERT_LE(std::abs(a.beta), 4.54 * kDeg + 1e-12);
+    ASSERT_LE(std::abs(a.alpha), 4.54 * kRadPerDeg + 1e-12);
+    ASSERT_LE(std::abs(a.beta), 4.54 * kRadPerDeg + 1e-12);
     corner += alpha_edge && beta_edge ? 1 : 0;
     if (alpha_edge) ++sides[a.alpha > 0 ? 0 : 1];
     if (beta_edge) ++sides[a.beta > 0 ? 2 : 3];

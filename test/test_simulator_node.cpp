@@ -9,6 +9,8 @@
 #include <map>
 #include <mutex>
 
+#include "digital_sun_sensor/common/units.h"
+
 namespace {
 
 std::mutex mutex;
@@ -66,7 +68,7 @@ TEST(SimulatorNode, PublishesImageAndTruthAtRateWithEqualStamps) {
     ++matched;
     EXPECT_TRUE(it->second->valid);
     EXPECT_EQ(it->second->source, "truth");
-    EXPECT_LE(std::abs(it->second->alpha), 4.54 * M_PI / 180.0 + 1e-9);
+    EXPECT_LE(std::abs(it->second->alpha), dss::degToRad(4.54) + 1e-9);
   }
   // Every image has its truth except possibly the first (its truth may have
   // been taken before the clear above, the image after it) and the last (its

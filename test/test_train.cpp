@@ -11,6 +11,7 @@
 #include <fstream>
 
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/eval/uncertainty.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
@@ -333,7 +334,6 @@ TEST(Train, WrongApertureImagesAreLeftOutOfTheAngleLoss) {
 // counted, not averaged; a wrong class with a small error (a spot between two
 // apertures) and a right class with a large error are averaged.
 TEST(Train, ValidationLeavesGrossFailuresOutOfTheMean) {
-  constexpr double kDeg = 3.14159265358979323846 / 180.0;
   std::vector<SparseSample> truth(5);
   std::vector<Prediction> predictions(5);
   const double alpha_error_deg[5] = {0.001, 0.003, 40.0, 50.0, 2.0};
@@ -342,8 +342,8 @@ TEST(Train, ValidationLeavesGrossFailuresOutOfTheMean) {
     truth[k].alpha_rad = 0.1;
     truth[k].beta_rad = -0.2;
     truth[k].subfov_class = 7;
-    predictions[k].alpha_rad = 0.1 + alpha_error_deg[k] * kDeg;
-    predictions[k].beta_rad = -0.2 + 0.002 * kDeg;
+    predictions[k].alpha_rad = 0.1 + alpha_error_deg[k] * kRadPerDeg;
+    predictions[k].beta_rad = -0.2 + 0.002 * kRadPerDeg;
     predictions[k].subfov_class = predicted_class[k];
   }
   predictions[3].code_margin = 1.2;  // declined as the estimator would
@@ -404,7 +404,7 @@ TEST(BiasCalibration, RemovesASmoothBiasOnHeldOutImages) {
     for (std::size_t k = 0; k < p.size(); ++k)
       sum += std::pow(p[k].alpha_rad - held_out.samples()[k].alpha_rad, 2) +
              std::pow(p[k].beta_rad - held_out.samples()[k].beta_rad, 2);
-    return std::sqrt(sum / (2.0 * static_cast<double>(p.size()))) * 180.0 / M_PI;
+    return radToDeg(std::sqrt(sum / (2.0 * static_cast<double>(p.size()))));
   };
   const std::vector<Prediction> raw = estimates(model);
   const BiasCalibration c = calibrateBias(model, fitted, 1000, 4);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
@@ -89,15 +90,14 @@ bool insideFov(const SunSolution& s, const AssociationOptions& options) {
 
 AssociationOptions AssociationOptions::forSensor(const SensorConfig& config, const MaskGeometry& geometry) {
   AssociationOptions o;
-  constexpr double kDeg = M_PI / 180.0;
   // 10% beyond the field of view: the sun may stray past it and still be seen.
-  o.fov_alpha_rad = std::min(1.5, 1.1 * config.fov.alpha_max_deg * kDeg + 0.5 * kDeg);
-  o.fov_beta_rad = std::min(1.5, 1.1 * config.fov.beta_max_deg * kDeg + 0.5 * kDeg);
+  o.fov_alpha_rad = std::min(1.5, 1.1 * config.fov.alpha_max_deg * kRadPerDeg + 0.5 * kRadPerDeg);
+  o.fov_beta_rad = std::min(1.5, 1.1 * config.fov.beta_max_deg * kRadPerDeg + 0.5 * kRadPerDeg);
   double max_diameter = 0.0;
   for (double d : geometry.aperture_diameters_um) max_diameter = std::max(max_diameter, d);
   const double min_spacing = geometry.minApertureSpacingUm();
   // Spot radius: aperture plus the solar disk's blur.
-  const double sun_blur_um = geometry.height_um * std::tan(0.5 * config.optics.sun.angular_diameter_deg * kDeg);
+  const double sun_blur_um = geometry.height_um * std::tan(0.5 * config.optics.sun.angular_diameter_deg * kRadPerDeg);
   o.edge_margin_px = (0.5 * max_diameter + sun_blur_um) / geometry.pitch_um + 3.0;
   o.gate_px = geometry.numApertures() > 1 ? std::clamp(0.25 * min_spacing / geometry.pitch_um, 2.0, 10.0) : 10.0;
   return o;

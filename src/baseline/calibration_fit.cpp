@@ -8,12 +8,12 @@
 #include <limits>
 
 #include "digital_sun_sensor/baseline/association.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
 namespace {
 
-constexpr double kDeg = M_PI / 180.0;
 enum Global { kHeight, kOffsetX, kOffsetY, kRotation, kTiltX, kTiltY, kNumGlobals };
 const char* kGlobalNames[kNumGlobals] = {"height", "offset_x", "offset_y", "rotation", "tilt_x", "tilt_y"};
 // Central-difference steps: ~0.01 um of spot motion each.
@@ -341,11 +341,11 @@ CalibrationFitReport fitCalibration(const std::vector<CalibrationSample>& sample
     sum_geo += r.d_alpha * r.d_alpha + r.d_beta * r.d_beta;
     const double ea = r.d_alpha - c.x(), eb = r.d_beta - c.y();
     sum += ea * ea + eb * eb;
-    report.angle_max_deg = std::max({report.angle_max_deg, std::abs(ea) / kDeg, std::abs(eb) / kDeg});
+    report.angle_max_deg = std::max({report.angle_max_deg, std::abs(ea) / kRadPerDeg, std::abs(eb) / kRadPerDeg});
   }
   if (!residuals.empty()) {
-    report.angle_rms_deg_geometry = std::sqrt(sum_geo / (2.0 * residuals.size())) / kDeg;
-    report.angle_rms_deg = std::sqrt(sum / (2.0 * residuals.size())) / kDeg;
+    report.angle_rms_deg_geometry = std::sqrt(sum_geo / (2.0 * residuals.size())) / kRadPerDeg;
+    report.angle_rms_deg = std::sqrt(sum / (2.0 * residuals.size())) / kRadPerDeg;
   }
   calibration.fit_yaml = report.toYaml();
   return report;

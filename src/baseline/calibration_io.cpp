@@ -7,13 +7,13 @@
 #include "digital_sun_sensor/baseline/calibration.h"
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/spike_filter.h"
+#include "digital_sun_sensor/common/units.h"
 
 namespace dss {
 namespace {
 
 constexpr const char* kFormat = "dss_calibration";
 constexpr int kVersion = 1;
-constexpr double kDeg = M_PI / 180.0;
 
 template <typename T>
 T required(const YAML::Node& node, const std::string& key, const std::string& where) {
@@ -37,7 +37,7 @@ Calibration Calibration::nominalOf(const SensorConfig& config) {
   c.sensor = config;
   c.extraction = SpotExtractionConfig::forSensor(config);
   c.geometry = MaskGeometry::nominalOf(config);
-  c.polynomial.scale = std::tan(std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg) * kDeg);
+  c.polynomial.scale = std::tan(std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg) * kRadPerDeg);
   return c;
 }
 
@@ -61,9 +61,9 @@ std::string toYaml(const Calibration& c) {
   out << YAML::Key << "height_um" << YAML::Value << g.height_um;
   out << YAML::Key << "offset_x_um" << YAML::Value << g.offset_x_um;
   out << YAML::Key << "offset_y_um" << YAML::Value << g.offset_y_um;
-  out << YAML::Key << "rotation_deg" << YAML::Value << g.rotation_rad / kDeg;
-  out << YAML::Key << "tilt_x_deg" << YAML::Value << g.tilt_x_rad / kDeg;
-  out << YAML::Key << "tilt_y_deg" << YAML::Value << g.tilt_y_rad / kDeg;
+  out << YAML::Key << "rotation_deg" << YAML::Value << g.rotation_rad / kRadPerDeg;
+  out << YAML::Key << "tilt_x_deg" << YAML::Value << g.tilt_x_rad / kRadPerDeg;
+  out << YAML::Key << "tilt_y_deg" << YAML::Value << g.tilt_y_rad / kRadPerDeg;
   out << YAML::Key << "glass_thickness_um" << YAML::Value << g.glass_thickness_um;
   out << YAML::Key << "glass_index" << YAML::Value << g.glass_index;
   out << YAML::Key << "apertures" << YAML::Value << YAML::BeginSeq;
@@ -140,9 +140,9 @@ Calibration parseCalibration(const std::string& yaml_text, const std::string& or
   if (geo.height_um <= 0.0) throw CalibrationError(gw + ".height_um must be > 0");
   geo.offset_x_um = finite(required<double>(g, "offset_x_um", gw), gw + ".offset_x_um");
   geo.offset_y_um = finite(required<double>(g, "offset_y_um", gw), gw + ".offset_y_um");
-  geo.rotation_rad = finite(required<double>(g, "rotation_deg", gw), gw + ".rotation_deg") * kDeg;
-  geo.tilt_x_rad = finite(required<double>(g, "tilt_x_deg", gw), gw + ".tilt_x_deg") * kDeg;
-  geo.tilt_y_rad = finite(required<double>(g, "tilt_y_deg", gw), gw + ".tilt_y_deg") * kDeg;
+  geo.rotation_rad = finite(required<double>(g, "rotation_deg", gw), gw + ".rotation_deg") * kRadPerDeg;
+  geo.tilt_x_rad = finite(required<double>(g, "tilt_x_deg", gw), gw + ".tilt_x_deg") * kRadPerDeg;
+  geo.tilt_y_rad = finite(required<double>(g, "tilt_y_deg", gw), gw + ".tilt_y_deg") * kRadPerDeg;
   geo.glass_thickness_um = finite(required<double>(g, "glass_thickness_um", gw), gw + ".glass_thickness_um");
   geo.glass_index = finite(required<double>(g, "glass_index", gw), gw + ".glass_index");
   if (geo.glass_index < 1.0) throw CalibrationError(gw + ".glass_index must be >= 1");

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <limits>
 
+#include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
@@ -27,23 +28,23 @@ SunEstimate CentroidEstimator::estimateOne(const cv::Mat& image, std::vector<Det
   try {
     input_.checkImage(image);
   } catch (const std::invalid_argument& ex) {
-    est.status = std::string("bad_image: ") + ex.what();
+    est.status = status::withDetail(status::kBadImage, ex.what());
     return est;
   }
   const std::vector<DetectedSpot> spots = extractSpots(image, calibration_.extraction);
   if (spots_out) *spots_out = spots;
   if (spots.empty()) {
-    est.status = "no_sun";
+    est.status = status::kNoSun;
     return est;
   }
   if (std::all_of(spots.begin(), spots.end(), [](const DetectedSpot& s) { return s.touches_edge; })) {
-    est.status = "spot_at_edge";
+    est.status = status::kSpotAtEdge;
     return est;
   }
   const MaskGeometry& geometry = calibration_.geometry;
   const auto association = associateSpots(geometry, spots, association_);
   if (!association) {
-    est.status = "no_match";
+    est.status = status::kNoMatch;
     return est;
   }
   const SunSolution& s = association->solution;
@@ -66,7 +67,7 @@ SunEstimate CentroidEstimator::estimateOne(const cv::Mat& image, std::vector<Det
   }
   // Several spots that disagree beyond their noise: a wrong match or an anomaly.
   if (association->observations.size() > 1 && s.rms_px > 10.0 * sigma + 0.5) {
-    est.status = "inconsistent_spots";
+    est.status = status::kInconsistentSpots;
     return est;
   }
   est.valid = cov.allFinite();

@@ -3,8 +3,9 @@
 #include <sstream>
 
 #include "commands.h"
-#include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/baseline/calibration_fit.h"
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "progress.h"
 
@@ -70,7 +71,6 @@ int runCalibrate(int argc, char** argv) {
   saveCalibration(args.get("out"), calibration);
 
   const auto& g = calibration.geometry;
-  constexpr double kDeg = 180.0 / M_PI;
   std::cerr << "fitted " << report.observations << " spots of " << report.images << " images (" << report.outliers
             << " outliers dropped): residual " << report.rms_px_design << " px (design) -> " << report.rms_px_fitted
             << " px; angle RMS " << report.angle_rms_deg_geometry << " deg (geometry) -> " << report.angle_rms_deg
@@ -84,8 +84,8 @@ int runCalibrate(int argc, char** argv) {
        << ", \"angle_rms_deg_geometry\": " << report.angle_rms_deg_geometry
        << ", \"angle_rms_deg\": " << report.angle_rms_deg << ", \"angle_max_deg\": " << report.angle_max_deg
        << ", \"height_um\": " << g.height_um << ", \"offset_x_um\": " << g.offset_x_um
-       << ", \"offset_y_um\": " << g.offset_y_um << ", \"rotation_deg\": " << g.rotation_rad * kDeg
-       << ", \"tilt_x_deg\": " << g.tilt_x_rad * kDeg << ", \"tilt_y_deg\": " << g.tilt_y_rad * kDeg
+       << ", \"offset_y_um\": " << g.offset_y_um << ", \"rotation_deg\": " << g.rotation_rad * kDegPerRad
+       << ", \"tilt_x_deg\": " << g.tilt_x_rad * kDegPerRad << ", \"tilt_y_deg\": " << g.tilt_y_rad * kDegPerRad
        << ", \"polynomial_degree\": " << calibration.polynomial.degree << "}";
   std::cout << json.str() << std::endl;
   return 0;

@@ -8,6 +8,7 @@
 #include <optional>
 
 #include "commands.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
@@ -106,8 +107,8 @@ int runCalibrateSigma(int argc, char** argv) {
             << ", \"sigma_mode\": \"" << (c.constant ? (c.site_law.active() ? "lit_sites" : "constant") : "head")
             << "\", \"sigma_site_exponent\": " << c.site_law.exponent
             << ", \"sigma_site_reference\": " << c.site_law.reference_sites
-            << ", \"constant_sigma_alpha_deg\": " << c.constant_sigma_alpha_rad * 180.0 / M_PI
-            << ", \"constant_sigma_beta_deg\": " << c.constant_sigma_beta_rad * 180.0 / M_PI
+            << ", \"constant_sigma_alpha_deg\": " << radToDeg(c.constant_sigma_alpha_rad)
+            << ", \"constant_sigma_beta_deg\": " << radToDeg(c.constant_sigma_beta_rad)
             << ", \"correction_degree\": " << model.meta.angle_correction.degree << ", \"inference_symmetry\": \""
             << inferenceSymmetryName(model.meta.inference_symmetry) << "\"";
   if (bias) {

@@ -59,7 +59,8 @@ void computeBounds(std::vector<EvalRecord>& records, const SensorConfig& config,
 int runEval(int argc, char** argv) {
   const std::string threads = std::to_string(std::max(1u, std::thread::hardware_concurrency()));
   Args args("dss eval",
-            "Evaluates an estimator on a labelled dataset bag; prints one JSON line (DESIGN section 7).\n"
+            "Evaluates an estimator on a labelled dataset bag; prints one JSON line (keys: docs/design.md, Evaluation "
+            "keys).\n"
             "Errors are |estimate - truth| over the images the estimator marked valid.",
             {
                 {"data", "BAG", "dataset bag(s) of /sun_sensor/image + /sun_sensor/truth", "", true, true},

@@ -1,12 +1,11 @@
-#include "commands.h"
-
-#include "digital_sun_sensor/sim/geometry.h"
-#include "digital_sun_sensor/sim/renderer.h"
-
-#include <opencv2/imgcodecs.hpp>
-
 #include <cmath>
 #include <iostream>
+#include <opencv2/imgcodecs.hpp>
+
+#include "commands.h"
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss::cli {
 
@@ -28,9 +27,9 @@ int runRender(int argc, char** argv) {
   RenderOptions options;
   options.threshold = !args.has("raw");
   ImageTruth truth;
-  const cv::Mat image = renderer.render(
-      sunVectorFromAngles(args.getDouble("alpha-deg") * M_PI / 180.0, args.getDouble("beta-deg") * M_PI / 180.0),
-      deriveSeed(seed, 0), &truth, options);
+  const cv::Mat image =
+      renderer.render(sunVectorFromAngles(degToRad(args.getDouble("alpha-deg")), degToRad(args.getDouble("beta-deg"))),
+                      deriveSeed(seed, 0), &truth, options);
   if (!cv::imwrite(args.get("out"), image)) throw std::runtime_error("cannot write '" + args.get("out") + "'");
   int on = 0;
   for (const auto& s : truth.spots) on += s.on_detector ? 1 : 0;

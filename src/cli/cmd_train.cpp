@@ -43,6 +43,10 @@ int runTrain(int argc, char** argv) {
            "angle corrections from the pooled backbone features (on), or the angles a smooth function of the spot "
            "position alone (off); default: the --init model's, else on",
            "", false, false},
+          {"lattice-phase", "RULE",
+           "lattice masks: whole spots read spot by spot (spotwise) or their sites pooled (whole_spots, the shipped "
+           "thesis_ma); default: the --init model's, else spotwise",
+           "", false, false},
           {"init", "MODEL", "start from this model's weights (fine-tuning; it must suit the sensor)", "", false, false},
           {"resume", "CKPT", "continue from this checkpoint", "", false, false},
           {"checkpoint", "CKPT", "checkpoint file (default: MODEL.ckpt, or the --resume file)", "", false, false},
@@ -71,6 +75,7 @@ int runTrain(int argc, char** argv) {
   options.init_model = args.get("init");
   options.centroid_weighting = args.get("centroid-weighting");
   options.feature_corrections = args.get("feature-corrections");
+  options.lattice_phase = args.get("lattice-phase");
   options.epochs = static_cast<int>(args.getInt("epochs"));
   options.batch_size = static_cast<int>(args.getInt("batch"));
   options.learning_rate = args.getDouble("lr");

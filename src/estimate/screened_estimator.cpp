@@ -5,6 +5,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include "digital_sun_sensor/common/estimate_status.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/input_spec.h"
 
 namespace dss {
@@ -74,7 +76,7 @@ Cleaned clean(const cv::Mat& image, double threshold_dn, double floor_dn, int mi
 }
 
 std::string saturationStatus(std::size_t saturated_px, std::size_t total_px, const ScreenOptions& options) {
-  return saturated_px > options.max_saturated_fraction * total_px ? "saturated" : "";
+  return saturated_px > options.max_saturated_fraction * total_px ? status::kSaturated : "";
 }
 
 }  // namespace
@@ -91,19 +93,18 @@ std::string screenImage(const cv::Mat& image, int max_code, const ScreenOptions&
 
 void screenEstimate(SunEstimate* estimate, const SensorConfig& sensor, const ScreenOptions& options) {
   if (!estimate->valid) return;
-  constexpr double kDeg = M_PI / 180.0;
-  const double max_var = std::pow(options.max_sigma_deg * kDeg, 2);
+  const double max_var = std::pow(options.max_sigma_deg * kRadPerDeg, 2);
   const double var_a = estimate->covariance[0], var_b = estimate->covariance[3];
   if (!std::isfinite(estimate->alpha_rad) || !std::isfinite(estimate->beta_rad)) {
     estimate->valid = false;
-    estimate->status = "not_finite";
+    estimate->status = status::kNotFinite;
   } else if (!(var_a <= max_var && var_b <= max_var)) {  // also catches NaN
     estimate->valid = false;
-    estimate->status = "out_of_distribution";
-  } else if (std::abs(estimate->alpha_rad) > (sensor.fov.alpha_max_deg + options.fov_margin_deg) * kDeg ||
-             std::abs(estimate->beta_rad) > (sensor.fov.beta_max_deg + options.fov_margin_deg) * kDeg) {
+    estimate->status = status::kOutOfDistribution;
+  } else if (std::abs(estimate->alpha_rad) > (sensor.fov.alpha_max_deg + options.fov_margin_deg) * kRadPerDeg ||
+             std::abs(estimate->beta_rad) > (sensor.fov.beta_max_deg + options.fov_margin_deg) * kRadPerDeg) {
     estimate->valid = false;
-    estimate->status = "outside_fov";
+    estimate->status = status::kOutsideFov;
   }
 }
 

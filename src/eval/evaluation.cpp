@@ -7,11 +7,10 @@
 
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/json.h"
+#include "digital_sun_sensor/common/units.h"
 
 namespace dss {
 namespace {
-
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 AxisStats axisStats(std::vector<double> errors_deg) {
   AxisStats s;
@@ -52,8 +51,8 @@ EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string&
     ++s.valid;
     const double a = std::abs(r.estimate.alpha_rad - r.alpha_true_rad),
                  b = std::abs(r.estimate.beta_rad - r.beta_true_rad);
-    ea.push_back(a * kRadToDeg);
-    eb.push_back(b * kRadToDeg);
+    ea.push_back(a * kDegPerRad);
+    eb.push_back(b * kDegPerRad);
     za.push_back({a, std::sqrt(r.estimate.covariance[0])});
     zb.push_back({b, std::sqrt(r.estimate.covariance[3])});
     if (r.subfov_true >= 0) {
@@ -80,11 +79,11 @@ EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string&
   s.ms_per_image = s.n ? total_ms / s.n : 0.0;
   if (s.crlb_samples && bound_sq > 0.0) {
     s.crlb_ratio = std::sqrt(err_sq / bound_sq);
-    s.crlb_rms_deg = std::sqrt(bound_sq / (2.0 * s.crlb_samples)) * kRadToDeg;
+    s.crlb_rms_deg = std::sqrt(bound_sq / (2.0 * s.crlb_samples)) * kDegPerRad;
   }
   if (readout_samples && readout_bound_sq > 0.0) {
     s.readout_crlb_ratio = std::sqrt(readout_err_sq / readout_bound_sq);
-    s.readout_crlb_rms_deg = std::sqrt(readout_bound_sq / (2.0 * readout_samples)) * kRadToDeg;
+    s.readout_crlb_rms_deg = std::sqrt(readout_bound_sq / (2.0 * readout_samples)) * kDegPerRad;
   }
   return s;
 }
@@ -120,13 +119,13 @@ void writeEvalCsv(const std::string& path, const std::vector<EvalRecord>& record
         "alpha_sigma_deg,beta_sigma_deg,valid,status,subfov_true,subfov_est,crlb_alpha_deg,crlb_beta_deg\n";
   for (const auto& r : records) {
     const auto& e = r.estimate;
-    os << r.index << ',' << r.stamp_s << ',' << r.alpha_true_rad * kRadToDeg << ',' << r.beta_true_rad * kRadToDeg
-       << ',' << e.alpha_rad * kRadToDeg << ',' << e.beta_rad * kRadToDeg << ','
-       << (e.alpha_rad - r.alpha_true_rad) * kRadToDeg << ',' << (e.beta_rad - r.beta_true_rad) * kRadToDeg << ','
-       << std::sqrt(std::max(0.0, e.covariance[0])) * kRadToDeg << ','
-       << std::sqrt(std::max(0.0, e.covariance[3])) * kRadToDeg << ',' << (e.valid ? 1 : 0) << ',' << csvField(e.status)
-       << ',' << r.subfov_true << ',' << e.subfov_class << ',' << std::sqrt(r.crlb_alpha_rad2) * kRadToDeg << ','
-       << std::sqrt(r.crlb_beta_rad2) * kRadToDeg << '\n';
+    os << r.index << ',' << r.stamp_s << ',' << r.alpha_true_rad * kDegPerRad << ',' << r.beta_true_rad * kDegPerRad
+       << ',' << e.alpha_rad * kDegPerRad << ',' << e.beta_rad * kDegPerRad << ','
+       << (e.alpha_rad - r.alpha_true_rad) * kDegPerRad << ',' << (e.beta_rad - r.beta_true_rad) * kDegPerRad << ','
+       << std::sqrt(std::max(0.0, e.covariance[0])) * kDegPerRad << ','
+       << std::sqrt(std::max(0.0, e.covariance[3])) * kDegPerRad << ',' << (e.valid ? 1 : 0) << ','
+       << csvField(e.status) << ',' << r.subfov_true << ',' << e.subfov_class << ','
+       << std::sqrt(r.crlb_alpha_rad2) * kDegPerRad << ',' << std::sqrt(r.crlb_beta_rad2) * kDegPerRad << '\n';
   }
   writeFileAtomic(path, os.str());
 }

@@ -9,6 +9,7 @@
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/json.h"
 #include "digital_sun_sensor/common/statistics.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/eval/evaluation.h"
 #include "digital_sun_sensor/eval/plot.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
@@ -16,7 +17,6 @@
 namespace dss {
 namespace {
 
-constexpr double kDeg = 180.0 / M_PI;
 using Progress = std::function<void(const std::string&, std::size_t, std::size_t)>;
 
 struct Labelled {
@@ -65,10 +65,12 @@ cv::Mat errorMap(const std::vector<EvalRecord>& records, const SensorConfig& s, 
   const double a_max = s.fov.alpha_max_deg, b_max = s.fov.beta_max_deg;
   for (const auto& r : records) {
     if (!r.estimate.valid) continue;
-    const int c = std::clamp(static_cast<int>((r.alpha_true_rad * kDeg + a_max) / (2 * a_max) * bins), 0, bins - 1);
-    const int w = std::clamp(static_cast<int>((r.beta_true_rad * kDeg + b_max) / (2 * b_max) * bins), 0, bins - 1);
+    const int c =
+        std::clamp(static_cast<int>((r.alpha_true_rad * kDegPerRad + a_max) / (2 * a_max) * bins), 0, bins - 1);
+    const int w =
+        std::clamp(static_cast<int>((r.beta_true_rad * kDegPerRad + b_max) / (2 * b_max) * bins), 0, bins - 1);
     const double e = alpha ? r.estimate.alpha_rad - r.alpha_true_rad : r.estimate.beta_rad - r.beta_true_rad;
-    sum.at<double>(w, c) += std::abs(e) * kDeg;
+    sum.at<double>(w, c) += std::abs(e) * kDegPerRad;
     count.at<double>(w, c) += 1.0;
   }
   cv::Mat mean(bins, bins, CV_64F);
@@ -81,7 +83,8 @@ std::vector<double> signedErrorsDeg(const std::vector<EvalRecord>& records, bool
   std::vector<double> e;
   for (const auto& r : records)
     if (r.estimate.valid)
-      e.push_back((alpha ? r.estimate.alpha_rad - r.alpha_true_rad : r.estimate.beta_rad - r.beta_true_rad) * kDeg);
+      e.push_back((alpha ? r.estimate.alpha_rad - r.alpha_true_rad : r.estimate.beta_rad - r.beta_true_rad) *
+                  kDegPerRad);
   return e;
 }
 
@@ -266,7 +269,8 @@ std::string writeReport(const SensorConfig& sensor, SunEstimator& sscnn, SunEsti
       plot::Series s{names[e], {}, {}, false, true};
       for (const auto& r : records[e])
         if (r.estimate.valid)
-          s.x.push_back(r.alpha_true_rad * kDeg), s.y.push_back((r.estimate.alpha_rad - r.alpha_true_rad) * kDeg);
+          s.x.push_back(r.alpha_true_rad * kDegPerRad),
+              s.y.push_back((r.estimate.alpha_rad - r.alpha_true_rad) * kDegPerRad);
       series.push_back(s);
     }
     save("error_vs_truth.png", plot::lines({"alpha error against true alpha", "true alpha (deg)", "error (deg)", false,

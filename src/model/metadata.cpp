@@ -7,10 +7,10 @@
 #include <ctime>
 #include <sstream>
 
+#include "digital_sun_sensor/common/units.h"
+
 namespace dss {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 std::string utcNow() {
   const std::time_t t = std::time(nullptr);
@@ -72,7 +72,7 @@ const char* latticeResolveName(LatticeResolve r) {
 // from the coarse centroid when the sub-FOV classes are quadrants; when they
 // are the apertures, from the aperture code if the diameters differ (the
 // spots then tell the apertures apart), else from the class.
-void setLattice(const SensorConfig& config, ArchSpec& arch) {
+void setLattice(const SensorConfig& config, const HeadOptions& head, ArchSpec& arch) {
   arch.lattice_pitch_x = arch.lattice_pitch_y = 0.0;
   arch.lattice_columns = arch.lattice_rows = 1;
   if (config.mask.apertures.size() < 2) return;
@@ -107,7 +107,7 @@ void setLattice(const SensorConfig& config, ArchSpec& arch) {
   // For the code, the spot radius is the largest aperture's (as a circle,
   // normalized); thresholded masks keep the default, their lit core's scale.
   arch.lattice_whole_spot_phase = true;
-  arch.lattice_spotwise_phase = true;
+  arch.lattice_spotwise_phase = head.lattice_spotwise_phase;
   arch.lattice_pixel_x = 2.0 / config.detector.width_px;
   arch.lattice_pixel_y = 2.0 / config.detector.height_px;
   if (arch.lattice_resolve == LatticeResolve::kCode)
@@ -117,12 +117,12 @@ void setLattice(const SensorConfig& config, ArchSpec& arch) {
 
 }  // namespace
 
-ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch) {
+ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch, const HeadOptions& head) {
   ModelMetadata m;
   m.arch = arch;
   m.arch.num_classes = config.numSubFovClasses();
   if (m.arch.centroid_pool) {
-    setLattice(config, m.arch);
+    setLattice(config, head, m.arch);
     // Beyond ~10 deg the tan (and any refraction) bends the position-to-angle
     // map more than a cubic absorbs to the learned terms' resolution.
     constexpr double kWideFieldDeg = 10.0;
@@ -132,7 +132,7 @@ ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch) {
   }
   m.arch.validate();
   m.input = inputSpecFor(config);
-  m.angle_scale_rad = std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg) * kPi / 180.0;
+  m.angle_scale_rad = degToRad(std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg));
   m.sensor_name = config.name;
   m.sensor_yaml = toYaml(config);
   m.training_yaml = "{}";

@@ -11,6 +11,7 @@
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
@@ -41,7 +42,7 @@ namespace {
 // sensor (pinhole + refraction), by central differences at normal incidence.
 std::pair<double, double> centroidSlopes(const SensorConfig& config, double angle_scale_rad) {
   const MaskGeometry geometry = MaskGeometry::nominalOf(config);
-  const double step_rad = 0.5 * 3.14159265358979323846 / 180.0;
+  const double step_rad = degToRad(0.5);
   auto spot = [&](double alpha, double beta) { return geometry.spotPx(0, sunVectorFromAngles(alpha, beta)); };
   const auto xp = spot(step_rad, 0), xm = spot(-step_rad, 0), yp = spot(0, step_rad), ym = spot(0, -step_rad);
   if (!xp || !xm || !yp || !ym) return {0.0, 0.0};
@@ -64,9 +65,8 @@ GeometricPrior geometricPrior(const SensorConfig& config, int size, double angle
   centre.apertures_um = {Eigen::Vector2d::Zero()};
   centre.aperture_diameters_um.resize(1);
   const double half_w = 0.5 * config.detector.width_px, half_h = 0.5 * config.detector.height_px;
-  constexpr double kDeg = 3.14159265358979323846 / 180.0;
-  const auto edge_x = centre.spotPx(0, sunVectorFromAngles(1.1 * config.fov.alpha_max_deg * kDeg, 0.0));
-  const auto edge_y = centre.spotPx(0, sunVectorFromAngles(0.0, 1.1 * config.fov.beta_max_deg * kDeg));
+  const auto edge_x = centre.spotPx(0, sunVectorFromAngles(1.1 * config.fov.alpha_max_deg * kRadPerDeg, 0.0));
+  const auto edge_y = centre.spotPx(0, sunVectorFromAngles(0.0, 1.1 * config.fov.beta_max_deg * kRadPerDeg));
   if (!edge_x || !edge_y) throw ModelError("geometric prior: no ray reaches the detector at the edge of the field");
   GeometricPrior prior;
   prior.extent_x = std::abs(edge_x->x()) / half_w;
@@ -101,10 +101,10 @@ Model createModel(const SensorConfig& config, const std::string& arch_name, std:
   return createModel(config, archPreset(arch_name, config.numSubFovClasses()), seed);
 }
 
-Model createModel(const SensorConfig& config, const ArchSpec& arch, std::uint64_t seed) {
+Model createModel(const SensorConfig& config, const ArchSpec& arch, std::uint64_t seed, const HeadOptions& head) {
   torch::manual_seed(seed);
   Model m;
-  m.meta = metadataFor(config, arch);
+  m.meta = metadataFor(config, arch, head);
   m.net = std::make_shared<SscnnNetImpl>(m.meta.arch);
   const auto [slope_x, slope_y] = centroidSlopes(config, m.meta.angle_scale_rad);
   m.net->initCentroidMap(slope_x, slope_y);

@@ -4,6 +4,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 
@@ -42,7 +43,7 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
       usable.push_back(images[i]);
       where.push_back(i);
     } catch (const std::invalid_argument& e) {
-      out[i].status = std::string("bad_image: ") + e.what();
+      out[i].status = status::withDetail(status::kBadImage, e.what());
     }
   }
   if (usable.empty()) return out;
@@ -56,18 +57,18 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
     e.subfov_class = p.subfov_class;
     e.valid = p.active_sites > 0;
     if (!e.valid) {
-      e.status = "no_sun";
+      e.status = status::kNoSun;
     } else if (!impl_->envelope.contains(p.active_sites)) {
       e.valid = false;
-      e.status = "out_of_distribution: " + std::to_string(p.active_sites) +
+      e.status = std::string(status::kOutOfDistribution) + ": " + std::to_string(p.active_sites) +
                  " lit pixels (training: " + std::to_string(impl_->envelope.min_sites) + ".." +
                  std::to_string(impl_->envelope.max_sites) + ")";
     } else if (p.code_margin < kMinApertureCodeMargin) {
       e.valid = false;
-      std::ostringstream status;
-      status << "ambiguous_aperture: the runner-up lattice placement fits the spot sizes only " << std::setprecision(3)
-             << p.code_margin << " times worse (needs " << kMinApertureCodeMargin << ")";
-      e.status = status.str();
+      std::ostringstream detail;
+      detail << status::kAmbiguousAperture << ": the runner-up lattice placement fits the spot sizes only "
+             << std::setprecision(3) << p.code_margin << " times worse (needs " << kMinApertureCodeMargin << ")";
+      e.status = detail.str();
     }
   }
   return out;

@@ -7,11 +7,51 @@
 #include <algorithm>
 #include <cstdio>
 #include <map>
+#include <sstream>
 #include <stdexcept>
+#include <vector>
 
 #include "digital_sun_sensor/ros/conversions.h"
 
 namespace dss {
+namespace {
+
+// The field lines of a message definition (comments, blank lines and
+// constants dropped): what fixes the wire format.
+std::vector<std::string> fieldLines(const std::string& definition) {
+  std::vector<std::string> fields;
+  std::istringstream in(definition);
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("MSG:", 0) == 0 || line.rfind("===", 0) == 0) break;  // the embedded types follow
+    const auto constant = line.find('=');
+    line = line.substr(0, std::min(line.find('#'), constant));
+    const auto first = line.find_first_not_of(" \t"), last = line.find_last_not_of(" \t");
+    if (first == std::string::npos || constant != std::string::npos) continue;
+    fields.push_back(line.substr(first, last - first + 1));
+  }
+  return fields;
+}
+
+// A SunAngles message, also from bags recorded before the message got its
+// STATUS_* constants: constants change the type's MD5 sum (so rosbag refuses
+// to instantiate it) but not the wire format, so a message whose recorded
+// definition has the same fields is read from its bytes. Null otherwise.
+boost::shared_ptr<digital_sun_sensor::SunAngles> instantiateSunAngles(const rosbag::MessageInstance& m) {
+  using digital_sun_sensor::SunAngles;
+  if (auto msg = m.instantiate<SunAngles>()) return msg;
+  if (m.getDataType() != ros::message_traits::DataType<SunAngles>::value() ||
+      fieldLines(m.getMessageDefinition()) != fieldLines(ros::message_traits::Definition<SunAngles>::value()))
+    return nullptr;
+  std::vector<std::uint8_t> bytes(m.size());
+  ros::serialization::OStream out(bytes.data(), static_cast<std::uint32_t>(bytes.size()));
+  m.write(out);
+  auto msg = boost::make_shared<SunAngles>();
+  ros::serialization::IStream in(bytes.data(), static_cast<std::uint32_t>(bytes.size()));
+  ros::serialization::deserialize(in, *msg);
+  return msg;
+}
+
+}  // namespace
 
 DatasetBagWriter::DatasetBagWriter(const std::string& path, const SensorConfig& config, const std::string& info_yaml,
                                    double rate_hz, const DatasetTopics& topics, ros::Time start)
@@ -102,7 +142,7 @@ BagReadStats DatasetBagReader::forEach(const std::function<bool(const LabelledIm
       // Truth messages are small: index them by stamp, then stream the images.
       std::map<ros::Time, digital_sun_sensor::SunAngles> truths;
       for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(topics_.truth))) {
-        if (const auto t = m.instantiate<digital_sun_sensor::SunAngles>()) truths[t->header.stamp] = *t;
+        if (const auto t = instantiateSunAngles(m)) truths[t->header.stamp] = *t;
       }
       std::uint64_t matched_here = 0;
       for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(topics_.image))) {

@@ -10,6 +10,7 @@
 #include <pluginlib/class_list_macros.hpp>
 #include <sstream>
 
+#include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/common/statistics.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
@@ -77,7 +78,7 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
     throw std::runtime_error(std::string("~") + e.what());
   }
   // Inference per image is fastest single-threaded; the other core is left to
-  // the image source (README "Threads").
+  // the image source (docs/sscnn.md, "Threads").
   sparse::configureThreads(std::max(1, pnh_.param("aten_threads", 1)), std::max(1, pnh_.param("blas_threads", 1)));
 
   EstimatorOptions estimator_options;
@@ -172,23 +173,23 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
       images.push_back(imageFromMsg(*batch[i]));
       where.push_back(i);
     } catch (const std::invalid_argument& e) {
-      estimates[i].status = std::string("bad_image: ") + e.what();
+      estimates[i].status = status::withDetail(status::kBadImage, e.what());
     }
   }
   if (!estimator_) {
-    for (std::size_t i : where) estimates[i].status = "no_estimator";
+    for (std::size_t i : where) estimates[i].status = status::kNoEstimator;
   } else if (!images.empty()) {
     try {
       std::vector<SunEstimate> out = estimator_->estimate(images);
       for (std::size_t k = 0; k < out.size(); ++k) estimates[where[k]] = std::move(out[k]);
     } catch (const std::exception& e) {
       ROS_ERROR_THROTTLE(5.0, "calibration_node: estimator failed: %s", e.what());
-      for (std::size_t i : where) estimates[i].status = std::string("estimator_error: ") + e.what();
+      for (std::size_t i : where) estimates[i].status = status::withDetail(status::kEstimatorError, e.what());
     }
   }
   for (std::size_t i = 0; i < batch.size(); ++i) {
     // Encoding, buffer, or a size the sensor config disagrees with.
-    if (estimates[i].status.rfind("bad_image", 0) == 0)
+    if (status::statusCode(estimates[i].status) == status::kBadImage)
       ROS_ERROR_THROTTLE(5.0, "calibration_node: %s", estimates[i].status.c_str());
     publish(batch[i]->header, estimates[i], estimator_ ? source_ : "none");
   }
@@ -203,9 +204,9 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
       ++valid_;
       if (is_fallback_) ++fallback_estimates_;
     } else {
-      const std::string reason = e.status.substr(0, e.status.find(':'));
+      const std::string reason = status::statusCode(e.status);
       ++invalid_reasons_[reason];
-      if (reason == "bad_image") ++bad_images_;
+      if (reason == status::kBadImage) ++bad_images_;
     }
     const double latency_ms = (now - batch[i]->header.stamp).toSec() * 1e3;
     if (latency_ms_.size() < kLatencyWindow) {
@@ -243,7 +244,7 @@ void CalibrationNode::publish(const std_msgs::Header& image_header, const SunEst
   vector_pub_.publish(vector);
 
   if (publish_tf_) {
-    // The `sun` frame's +x axis points at the sun (DESIGN section 4).
+    // The `sun` frame's +x axis points at the sun (docs/design.md, "Frames and angles").
     const Eigen::Quaterniond q = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitX(), sun);
     geometry_msgs::TransformStamped tf;
     tf.header = header;

@@ -4,6 +4,9 @@
 #include <cstring>
 #include <stdexcept>
 
+#include "digital_sun_sensor/common/estimate_status.h"
+#include "digital_sun_sensor/common/units.h"
+
 namespace dss {
 
 sensor_msgs::Image toImageMsg(const cv::Mat& image, const std_msgs::Header& header) {
@@ -52,8 +55,8 @@ cv::Mat imageFromMsg(const sensor_msgs::Image& msg) {
 }
 
 bool insideFieldOfView(const SensorConfig& config, double alpha_rad, double beta_rad) {
-  constexpr double kRad = M_PI / 180.0;
-  return std::abs(alpha_rad) <= config.fov.alpha_max_deg * kRad && std::abs(beta_rad) <= config.fov.beta_max_deg * kRad;
+  return std::abs(alpha_rad) <= config.fov.alpha_max_deg * kRadPerDeg &&
+         std::abs(beta_rad) <= config.fov.beta_max_deg * kRadPerDeg;
 }
 
 SunAngles toTruthMsg(const ImageTruth& truth, const SensorConfig& config, const std_msgs::Header& header) {
@@ -65,7 +68,7 @@ SunAngles toTruthMsg(const ImageTruth& truth, const SensorConfig& config, const 
   msg.subfov_class = truth.subfov_class;
   msg.source = "truth";
   msg.valid = truth.sun.z() > 0.0 && insideFieldOfView(config, truth.alpha_rad, truth.beta_rad);
-  if (!msg.valid) msg.status = truth.sun.z() > 0.0 ? "outside_fov" : "sun_behind_sensor";
+  if (!msg.valid) msg.status = truth.sun.z() > 0.0 ? status::kOutsideFov : status::kSunBehindSensor;
   return msg;
 }
 

@@ -11,9 +11,12 @@
 #include <cstdio>
 #include <map>
 
+#include "digital_sun_sensor/common/units.h"
+
+using dss::kDegPerRad;
+
 namespace {
 
-constexpr double kDeg = 180.0 / M_PI;
 using digital_sun_sensor::SunAngles;
 
 class ErrorMonitor {
@@ -55,7 +58,7 @@ class ErrorMonitor {
     last_truth_ = truth;
     if (!est.valid) return;
     ++valid_;
-    const double da = (est.alpha - truth.alpha) * kDeg, db = (est.beta - truth.beta) * kDeg;
+    const double da = (est.alpha - truth.alpha) * kDegPerRad, db = (est.beta - truth.beta) * kDegPerRad;
     sum_abs_a_ += std::abs(da);
     sum_abs_b_ += std::abs(db);
     SunAngles err = est;
@@ -71,16 +74,17 @@ class ErrorMonitor {
       waiting_ = true;
     } else if (!last_est_.valid) {
       std::printf("[%s] invalid (%s) | truth a %+.5f b %+.5f deg | %lu images, %.0f%% valid\n",
-                  last_est_.source.c_str(), last_est_.status.c_str(), last_truth_.alpha * kDeg, last_truth_.beta * kDeg,
-                  count_, 100.0 * valid_ / count_);
+                  last_est_.source.c_str(), last_est_.status.c_str(), last_truth_.alpha * kDegPerRad,
+                  last_truth_.beta * kDegPerRad, count_, 100.0 * valid_ / count_);
     } else {
-      const double da = (last_est_.alpha - last_truth_.alpha) * kDeg, db = (last_est_.beta - last_truth_.beta) * kDeg;
+      const double da = (last_est_.alpha - last_truth_.alpha) * kDegPerRad,
+                   db = (last_est_.beta - last_truth_.beta) * kDegPerRad;
       std::printf(
           "[%s] a est %+.5f true %+.5f err %+.5f (1s %.5f) | b est %+.5f true %+.5f err %+.5f (1s %.5f) deg | "
           "%lu images: mean |err| %.5f / %.5f deg, %.0f%% valid\n",
-          last_est_.source.c_str(), last_est_.alpha * kDeg, last_truth_.alpha * kDeg, da,
-          std::sqrt(last_est_.covariance[0]) * kDeg, last_est_.beta * kDeg, last_truth_.beta * kDeg, db,
-          std::sqrt(last_est_.covariance[3]) * kDeg, count_, valid_ ? sum_abs_a_ / valid_ : 0.0,
+          last_est_.source.c_str(), last_est_.alpha * kDegPerRad, last_truth_.alpha * kDegPerRad, da,
+          std::sqrt(last_est_.covariance[0]) * kDegPerRad, last_est_.beta * kDegPerRad, last_truth_.beta * kDegPerRad,
+          db, std::sqrt(last_est_.covariance[3]) * kDegPerRad, count_, valid_ ? sum_abs_a_ / valid_ : 0.0,
           valid_ ? sum_abs_b_ / valid_ : 0.0, 100.0 * valid_ / count_);
     }
     if (count_ > 0) waiting_ = false;

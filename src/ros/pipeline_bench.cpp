@@ -9,14 +9,13 @@
 
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/statistics.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/ros/node_params.h"
 #include "digital_sun_sensor/ros/node_runner.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 
 namespace dss {
 namespace {
-
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 double mean(const std::vector<double>& v) {
   double sum = 0.0;
@@ -135,8 +134,8 @@ void PipelineBench::onAngles(const SunAngles::ConstPtr& msg) {
   ++answered_;
   if (msg->valid) {
     ++valid_;
-    abs_error_alpha_deg_.push_back(std::abs(msg->alpha - it->second.alpha_rad) * kRadToDeg);
-    abs_error_beta_deg_.push_back(std::abs(msg->beta - it->second.beta_rad) * kRadToDeg);
+    abs_error_alpha_deg_.push_back(std::abs(msg->alpha - it->second.alpha_rad) * kDegPerRad);
+    abs_error_beta_deg_.push_back(std::abs(msg->beta - it->second.beta_rad) * kDegPerRad);
   }
   sent_.erase(it);
 }

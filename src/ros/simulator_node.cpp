@@ -6,6 +6,7 @@
 #include <pluginlib/class_list_macros.hpp>
 #include <stdexcept>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/ros/conversions.h"
 #include "digital_sun_sensor/ros/node_params.h"
 #include "digital_sun_sensor/ros/node_runner.h"
@@ -14,8 +15,6 @@
 
 namespace dss {
 namespace {
-
-constexpr double kDegToRad = M_PI / 180.0;
 
 // Triangle wave in [-1, 1] with period 4.
 double triangle(double x) {
@@ -47,11 +46,11 @@ SimulatorNode::SimulatorNode(ros::NodeHandle nh, ros::NodeHandle pnh)
     throw std::runtime_error("~sun_direction_inertial must be a non-zero [x, y, z]");
   }
   sun_inertial_ = Eigen::Vector3d(sun[0], sun[1], sun[2]).normalized();
-  fixed_alpha_rad_ = pnh_.param("fixed_alpha_deg", 1.0) * kDegToRad;
-  fixed_beta_rad_ = pnh_.param("fixed_beta_deg", -0.5) * kDegToRad;
-  slew_rate_rad_s_ = pnh_.param("slew_rate_deg_s", 0.5) * kDegToRad;
-  slew_heading_rad_ = pnh_.param("slew_heading_deg", 30.0) * kDegToRad;
-  raster_step_rad_ = pnh_.param("raster_step_deg", 0.5) * kDegToRad;
+  fixed_alpha_rad_ = pnh_.param("fixed_alpha_deg", 1.0) * kRadPerDeg;
+  fixed_beta_rad_ = pnh_.param("fixed_beta_deg", -0.5) * kRadPerDeg;
+  slew_rate_rad_s_ = pnh_.param("slew_rate_deg_s", 0.5) * kRadPerDeg;
+  slew_heading_rad_ = pnh_.param("slew_heading_deg", 30.0) * kRadPerDeg;
+  raster_step_rad_ = pnh_.param("raster_step_deg", 0.5) * kRadPerDeg;
   if (!(raster_step_rad_ > 0.0)) throw std::runtime_error("~raster_step_deg must be > 0");
   seed_ = static_cast<std::uint64_t>(pnh_.param("seed", 1));
   publish_spots_ = pnh_.param("publish_spots", true);
@@ -127,7 +126,7 @@ bool SimulatorNode::attitudeSun(Eigen::Vector3d* sun_sensor) {
 
 Eigen::Vector3d SimulatorNode::profileSun(double t_s) {
   const auto& fov = renderer_->config().fov;
-  const double a_max = fov.alpha_max_deg * kDegToRad, b_max = fov.beta_max_deg * kDegToRad;
+  const double a_max = fov.alpha_max_deg * kRadPerDeg, b_max = fov.beta_max_deg * kRadPerDeg;
   if (profile_ == "fixed") return sunVectorFromAngles(fixed_alpha_rad_, fixed_beta_rad_);
   if (profile_ == "slew") {
     // Constant-rate slew, reflecting at the FOV edges.

@@ -1,20 +1,19 @@
 #include "digital_sun_sensor/sim/optics.h"
 
-#include "digital_sun_sensor/sim/fft2d.h"
-#include "digital_sun_sensor/sim/geometry.h"
-
 #include <Eigen/LU>
-
 #include <algorithm>
 #include <cmath>
 #include <complex>
 #include <numeric>
 #include <sstream>
 
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/fft2d.h"
+#include "digital_sun_sensor/sim/geometry.h"
+
 namespace dss {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr int kCoverageSubsamples = 4;  // per axis, for anti-aliased aperture edges
 
 double sinc(double x) { return std::abs(x) < 1e-9 ? 1.0 : std::sin(x) / x; }
@@ -45,7 +44,7 @@ void applyDetectorFilters(ComplexGrid& spectrum, const OpticalPath& path, const 
     // (wrapped), normalised to unit sum.
     ComplexGrid kernel(n);
     kernel.fill(0.0f);
-    const double radius_rad = 0.5 * path.sun.angular_diameter_deg * kPi / 180.0;
+    const double radius_rad = 0.5 * degToRad(path.sun.angular_diameter_deg);
     const Eigen::Matrix2d inv = jacobian.inverse();
     const double reach_um = radius_rad * jacobian.norm() + 2.0 * step;
     const int half = std::min(n / 2 - 1, static_cast<int>(std::ceil(reach_um / step)));
@@ -133,7 +132,7 @@ double fraunhoferShape(const ApertureGeometry& a, double u, double v, double lam
     const double j = x < 1e-9 ? 1.0 : 2.0 * std::cyl_bessel_j(1.0, x) / x;
     return j * j;
   }
-  const double t = a.rotation_deg * kPi / 180.0;
+  const double t = degToRad(a.rotation_deg);
   const double ur = std::cos(t) * u + std::sin(t) * v;
   const double vr = -std::sin(t) * u + std::cos(t) * v;
   const double sx = sinc(kPi * a.width_um * ur / lambda_z);
@@ -159,7 +158,7 @@ bool ApertureGeometry::contains(double x, double y) const {
   if (shape == ApertureShape::kCircle) {
     inside = x * x + y * y <= 0.25 * diameter_um * diameter_um;
   } else {
-    const double t = rotation_deg * kPi / 180.0;
+    const double t = degToRad(rotation_deg);
     const double xr = std::cos(t) * x + std::sin(t) * y;
     const double yr = -std::sin(t) * x + std::cos(t) * y;
     inside = std::abs(xr) <= 0.5 * width_um && std::abs(yr) <= 0.5 * height_um;
@@ -300,8 +299,8 @@ SpotMap computeSpotMap(const ApertureGeometry& aperture, const Eigen::Vector3d& 
             if (std::abs(land_x) < half_window && std::abs(land_y) < half_window) {
               const double phase =
                   2.0 * kPi * (path.air_gap_um * kz_air + path.glass_um * kz_glass + gx * centre.x() + gy * centre.y());
-              value = spectrum.at(r, c) * std::complex<float>(static_cast<float>(std::cos(phase)),
-                                                              static_cast<float>(std::sin(phase)));
+              value = spectrum.at(r, c) *
+                      std::complex<float>(static_cast<float>(std::cos(phase)), static_cast<float>(std::sin(phase)));
             }
           }
           field.at(r, c) = value;

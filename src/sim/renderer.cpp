@@ -1,14 +1,15 @@
 #include "digital_sun_sensor/sim/renderer.h"
 
-#include "digital_sun_sensor/sim/geometry.h"
-#include "digital_sun_sensor/sim/optics.h"
-#include "digital_sun_sensor/sim/readout.h"
-#include "digital_sun_sensor/sim/spot_cache.h"
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <map>
+
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/optics.h"
+#include "digital_sun_sensor/sim/readout.h"
+#include "digital_sun_sensor/sim/spot_cache.h"
 
 namespace dss {
 namespace {
@@ -17,8 +18,7 @@ constexpr double kPlanck = 6.62607015e-34;
 constexpr double kLightSpeed = 2.99792458e8;
 
 // Adds `scale` x (blended spot) centred at detector position (cx, cy) [um].
-void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double cy_um, double scale,
-           double pitch_um) {
+void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double cy_um, double scale, double pitch_um) {
   const int w = image.cols, h = image.rows;
   const double half_w = 0.5 * (w - 1), half_h = 0.5 * (h - 1);
   double u_lo = std::numeric_limits<double>::max(), u_hi = -u_lo, v_lo = u_lo, v_hi = -u_lo;
@@ -78,21 +78,19 @@ Renderer::~Renderer() = default;
 void Renderer::warmUp(int threads, const std::function<void(std::size_t, std::size_t)>& progress) const {
   const auto& c = instance_.config;
   // The spot cache already covers one node step beyond the requested range.
-  const double margin = 3.0 * c.as_built.tilt_sigma_deg * M_PI / 180.0;
+  const double margin = degToRad(3.0 * c.as_built.tilt_sigma_deg);
   std::map<std::string, ApertureGeometry> unique;
   for (const auto& a : instance_.apertures) {
     const ApertureGeometry g = ApertureGeometry::from(a);
     unique.emplace(g.key(), g);
   }
   for (const auto& [key, geometry] : unique) {
-    cache_->warmUp(geometry, c.fov.alpha_max_deg * M_PI / 180.0 + margin, c.fov.beta_max_deg * M_PI / 180.0 + margin,
-                   threads, progress);
+    cache_->warmUp(geometry, degToRad(c.fov.alpha_max_deg) + margin, degToRad(c.fov.beta_max_deg) + margin, threads,
+                   progress);
   }
 }
 
-double Renderer::darkElectronsPerSecond() const {
-  return instance_.config.noise.darkCurrentAtTemperatureEPerS();
-}
+double Renderer::darkElectronsPerSecond() const { return instance_.config.noise.darkCurrentAtTemperatureEPerS(); }
 
 cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* truth, Rng* anomaly_rng) const {
   const SensorConfig& c = instance_.config;

@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
@@ -33,14 +34,14 @@ AttitudeSampler::AttitudeSampler(const SensorConfig& config, SamplingMode mode, 
                                  double edge_band_deg)
     : mode_(mode),
       seed_(seed),
-      alpha_max_rad_(config.fov.alpha_max_deg * M_PI / 180.0),
-      beta_max_rad_(config.fov.beta_max_deg * M_PI / 180.0),
+      alpha_max_rad_(degToRad(config.fov.alpha_max_deg)),
+      beta_max_rad_(degToRad(config.fov.beta_max_deg)),
       pitch_over_height_(config.detector.pitch_um / (config.mask.height_mm * 1000.0)) {
   if (mode_ == SamplingMode::kEdge) {
     if (!(edge_band_deg > 0.0) || edge_band_deg > std::min(config.fov.alpha_max_deg, config.fov.beta_max_deg))
       throw std::invalid_argument("edge sampling: the band (" + std::to_string(edge_band_deg) +
                                   " deg) must be > 0 and at most the half field of view");
-    edge_band_rad_ = edge_band_deg * M_PI / 180.0;
+    edge_band_rad_ = degToRad(edge_band_deg);
   }
   if (mode_ == SamplingMode::kGrid) {
     grid_half_x_ = config.detector.width_px / 2;

@@ -5,11 +5,10 @@
 #include <cmath>
 
 #include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/units.h"
 
 namespace dss {
 namespace {
-
-constexpr double kDegToRad = M_PI / 180.0;
 
 // Radius of an occluding disk whose centre sits at distance `d` from the centre
 // of a circular aperture of radius `a`, chosen so that it blocks `fraction`
@@ -62,9 +61,9 @@ SensorInstance SensorInstance::draw(const SensorConfig& config, std::uint64_t se
   const auto& ab = config.as_built;
   Rng rng(deriveSeed(seed, 0xA5B1));
 
-  const double rot = rng.normal() * ab.rotation_sigma_deg * kDegToRad;
-  const double tilt_x = rng.normal() * ab.tilt_sigma_deg * kDegToRad;
-  const double tilt_y = rng.normal() * ab.tilt_sigma_deg * kDegToRad;
+  const double rot = rng.normal() * ab.rotation_sigma_deg * kRadPerDeg;
+  const double tilt_x = rng.normal() * ab.tilt_sigma_deg * kRadPerDeg;
+  const double tilt_y = rng.normal() * ab.tilt_sigma_deg * kRadPerDeg;
   s.mask_rotation = maskRotation(rot, tilt_x, tilt_y);
   s.mask_offset_um = Eigen::Vector3d(rng.normal() * ab.offset_sigma_um, rng.normal() * ab.offset_sigma_um,
                                      rng.normal() * ab.height_sigma_um);

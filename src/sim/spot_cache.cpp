@@ -6,12 +6,13 @@
 #include <thread>
 #include <vector>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
 
 SpotCache::SpotCache(OpticalPath path, double node_step_deg)
-    : path_(std::move(path)), step_rad_(node_step_deg * M_PI / 180.0) {}
+    : path_(std::move(path)), step_rad_(degToRad(node_step_deg)) {}
 
 std::shared_ptr<SpotCache> SpotCache::shared(const OpticalPath& path, double node_step_deg) {
   // Every field of the path, exactly (hex floats), and the node step.

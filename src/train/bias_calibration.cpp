@@ -8,13 +8,13 @@
 #include <stdexcept>
 #include <string>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
 #include "held_out.h"
 
 namespace dss {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 // Errors beyond this many times the median absolute error are not smooth bias.
 constexpr double kOutlierFactor = 20.0;
 // A richer correction must lower the cross-validated RMS by more than this
@@ -72,7 +72,7 @@ BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t
     errors(r, 1) = (p.beta_rad - kept[r]->sample->beta_rad) / scale;
   }
   auto rmsDeg = [&](const Eigen::MatrixXd& e) {
-    return std::sqrt(e.squaredNorm() / std::max<double>(1.0, static_cast<double>(e.size()))) * scale * kRadToDeg;
+    return std::sqrt(e.squaredNorm() / std::max<double>(1.0, static_cast<double>(e.size()))) * scale * kDegPerRad;
   };
 
   // Two folds, even and odd samples: each fitted on one and scored on the other.
@@ -91,7 +91,7 @@ BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t
       for (const Eigen::Index r : folds[1 - f])
         sum += (errors.row(r) - basis.row(r).head(terms) * coefficients).squaredNorm();
     }
-    const double rms = std::sqrt(sum / std::max<double>(1.0, 2.0 * static_cast<double>(n))) * scale * kRadToDeg;
+    const double rms = std::sqrt(sum / std::max<double>(1.0, 2.0 * static_cast<double>(n))) * scale * kDegPerRad;
     c.cross_validated_rms_deg.push_back(rms);
     if (rms < best * (1.0 - kRequiredGain)) {
       best = rms;

@@ -9,7 +9,7 @@ torch::Tensor trainingLoss(const SscnnOutput& out, const torch::Tensor& target, 
   // A full Gaussian NLL on the angles lets the network buy a small loss on
   // hard images (spots cut by the edge) with a large variance, and the worst
   // errors grow; the variance learns from the detached error instead, so it
-  // is honest without steering the angles (README "Training").
+  // is honest without steering the angles (docs/training.md).
   const auto error = out.angles - target;
   // An image whose lattice was resolved to another aperture than the true
   // one (stray light swelling the spots unevenly misleads the aperture code)

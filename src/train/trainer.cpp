@@ -143,6 +143,8 @@ void TrainOptions::validate() const {
   }
   require(feature_corrections.empty() || feature_corrections == "on" || feature_corrections == "off",
           "feature_corrections must be 'on' or 'off', not '" + feature_corrections + "'");
+  require(lattice_phase.empty() || lattice_phase == "spotwise" || lattice_phase == "whole_spots",
+          "lattice_phase must be 'spotwise' or 'whole_spots', not '" + lattice_phase + "'");
   const auto& a = augmentation;
   for (double p : {a.gain_probability, a.noise_probability, a.threshold_probability, a.dropout_probability})
     require(p >= 0 && p <= 1, "augmentation probabilities must be in [0, 1]");
@@ -195,6 +197,11 @@ struct Trainer::Impl {
       if (options.feature_corrections != corrections)
         throw std::invalid_argument("training option init_model: " + options.init_model + " has feature corrections " +
                                     corrections + ", not " + options.feature_corrections);
+      const std::string phase = model.meta.arch.lattice_spotwise_phase ? "spotwise" : "whole_spots";
+      if (options.lattice_phase.empty()) options.lattice_phase = phase;
+      if (model.meta.arch.latticeHead() && options.lattice_phase != phase)
+        throw std::invalid_argument("training option init_model: " + options.init_model + " has lattice phase " +
+                                    phase + ", not " + options.lattice_phase);
     } else {
       if (options.arch.empty()) options.arch = defaultArchName();
       if (options.centroid_weighting.empty()) options.centroid_weighting = "learned";
@@ -202,7 +209,10 @@ struct Trainer::Impl {
       arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
       if (options.feature_corrections.empty()) options.feature_corrections = "on";
       arch.feature_corrections = options.feature_corrections == "on";
-      model = createModel(sensor, arch, deriveSeed(options.seed, 0xA7C4));
+      if (options.lattice_phase.empty()) options.lattice_phase = "spotwise";
+      HeadOptions head;
+      head.lattice_spotwise_phase = options.lattice_phase == "spotwise";
+      model = createModel(sensor, arch, deriveSeed(options.seed, 0xA7C4), head);
     }
     model.net->train();
     optimizer = std::make_unique<torch::optim::AdamW>(
@@ -316,6 +326,7 @@ struct Trainer::Impl {
     e << YAML::Key << "arch" << YAML::Value << options.arch;
     e << YAML::Key << "centroid_weighting" << YAML::Value << options.centroid_weighting;
     e << YAML::Key << "feature_corrections" << YAML::Value << options.feature_corrections;
+    e << YAML::Key << "lattice_phase" << YAML::Value << options.lattice_phase;
     e << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
     e << YAML::Key << "epochs" << YAML::Value << options.epochs;
     e << YAML::Key << "seed" << YAML::Value << options.seed;
@@ -365,6 +376,8 @@ struct Trainer::Impl {
         expect("centroid_weighting", options.centroid_weighting);
       if (state["feature_corrections"])  // absent in checkpoints made before it existed
         expect("feature_corrections", options.feature_corrections);
+      if (state["lattice_phase"])  // absent in checkpoints made before it existed
+        expect("lattice_phase", options.lattice_phase);
       expect("batch_size", std::to_string(options.batch_size));
       expect("epochs", std::to_string(options.epochs));
       expect("seed", std::to_string(options.seed));

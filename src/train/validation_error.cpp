@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
 
 namespace dss {
@@ -15,7 +16,6 @@ ValidationError summarizeValidation(const std::vector<const SparseSample*>& samp
   if (samples.size() != predictions.size())
     throw std::invalid_argument("summarizeValidation: " + std::to_string(predictions.size()) + " predictions for " +
                                 std::to_string(samples.size()) + " samples");
-  constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
   ValidationError v;
   v.images = samples.size();
   if (v.images == 0) return v;
@@ -26,8 +26,8 @@ ValidationError summarizeValidation(const std::vector<const SparseSample*>& samp
     const SparseSample& s = *samples[k];
     const bool right_class = p.subfov_class == std::max(0, s.subfov_class);
     correct += right_class;
-    const double ea = std::abs(p.alpha_rad - s.alpha_rad) * kRadToDeg;
-    const double eb = std::abs(p.beta_rad - s.beta_rad) * kRadToDeg;
+    const double ea = std::abs(p.alpha_rad - s.alpha_rad) * kDegPerRad;
+    const double eb = std::abs(p.beta_rad - s.beta_rad) * kDegPerRad;
     if (p.code_margin < kMinApertureCodeMargin || (!right_class && std::max(ea, eb) > kGrossValidationErrorDeg)) {
       ++v.gross;
       continue;

@@ -15,7 +15,7 @@
 namespace dss {
 
 // The default, chosen on hot-pixel and nominal images of every shipped sensor
-// (README "Hot pixels"): 6 caught fewer hot pixels, 3 did no better than 4.
+// (docs/baseline.md, "Hot pixels"): 6 caught fewer hot pixels, 3 did no better than 4.
 constexpr double kDefaultSpikeSigmas = 4.0;
 // Diffraction peaks of wide_ma's small pinholes are sharp: a real central
 // pixel reads 1.15-1.4 times its brightest neighbour (the most at low codes,

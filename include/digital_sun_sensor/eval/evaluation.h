@@ -1,6 +1,6 @@
 // Accuracy of an estimator against ground truth: per-axis error statistics
 // over the images it marked valid, valid rate, sub-FOV accuracy, speed and the
-// ratio to the Cramer-Rao bound. One JSON line (DESIGN section 7) and a
+// ratio to the Cramer-Rao bound. One JSON line (docs/design.md, "Evaluation keys") and a
 // per-sample CSV.
 #pragma once
 
@@ -51,7 +51,7 @@ struct EvalSummary {
   // Fraction of valid estimates whose error lies within 1 / 2 / 3 predicted sigma.
   Coverage alpha_coverage, beta_coverage;
 
-  std::string toJson() const;  // one line, DESIGN section 7 keys first
+  std::string toJson() const;  // one line, docs/design.md's evaluation keys first
 };
 
 EvalSummary summarize(const std::vector<EvalRecord>& records, const std::string& estimator, double total_ms);

@@ -39,7 +39,7 @@ struct ReportOptions {
   void validate() const;  // throws std::invalid_argument naming the field
 };
 
-// A model trained on the published protocol (DESIGN section 2: far-field
+// A model trained on the published protocol (docs/design.md, "Reference sensor": far-field
 // optics, spot centres on the pixel grid) and a baseline calibrated on it,
 // evaluated on the protocol's images beside the published SSCNN's figures.
 struct PublishedProtocolRun {

@@ -25,6 +25,15 @@ const char* centroidWeightingName(CentroidWeighting weighting);
 // Throws std::invalid_argument for a name other than "learned", "value" or "intensity".
 CentroidWeighting parseCentroidWeighting(const std::string& name);
 
+// Choices of the head that follow the mask (set when a model is created, then
+// recorded in the ArchSpec of its file).
+struct HeadOptions {
+  // Lattice masks: read the whole spots spot by spot (ArchSpec::
+  // lattice_spotwise_phase); false gives the head of the models made before it
+  // (the shipped thesis_ma).
+  bool lattice_spotwise_phase = true;
+};
+
 struct ArchSpec {
   std::string name;
   int input_channels = 3;  // pixel value, x, y
@@ -47,7 +56,7 @@ struct ArchSpec {
   // besides the polynomial of the position. Off, the angles are a smooth
   // function of the position alone (prior + polynomial; the learned centroid
   // weights, class and variance branches still train): on wide_ma the MLP's
-  // corrections jumped with the position (README "Trained models").
+  // corrections jumped with the position (docs/results/wide_ma.md).
   bool feature_corrections = true;
   // Masks whose apertures form a regular, centred lattice of columns x rows:
   // the head reads the spot shift modulo the lattice pitch (circular mean of

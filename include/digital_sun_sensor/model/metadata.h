@@ -38,7 +38,7 @@ struct ModelMetadata {
 };
 
 // Metadata of a fresh model for a sensor.
-ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch);
+ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch, const HeadOptions& head = {});
 
 std::string metadataToYaml(const ModelMetadata& meta);
 // Throws ModelError naming `origin` and the bad key.

@@ -61,7 +61,8 @@ struct Model {
 // A freshly initialised model for a sensor; seeds torch's generator with `seed`.
 Model createModel(const SensorConfig& config, const std::string& arch_name, std::uint64_t seed = 1);
 // The same from an architecture spec (a preset with changed options).
-Model createModel(const SensorConfig& config, const ArchSpec& arch, std::uint64_t seed = 1);
+Model createModel(const SensorConfig& config, const ArchSpec& arch, std::uint64_t seed = 1,
+                  const HeadOptions& head = {});
 
 std::string serializeModel(const Model& model);
 void saveModel(const Model& model, const std::string& path);  // atomic (temp file + rename)

@@ -33,10 +33,14 @@ struct TrainOptions {
   // Angle corrections from the pooled features: "on" or "off" (ArchSpec::
   // feature_corrections; empty: the init model's, else "on").
   std::string feature_corrections;
+  // Lattice masks: "spotwise" (whole spots read spot by spot) or "whole_spots"
+  // (their sites pooled, as the shipped thesis_ma); empty: the init model's,
+  // else "spotwise". HeadOptions::lattice_spotwise_phase.
+  std::string lattice_phase;
   int batch_size = 64;
   int epochs = 20;                  // the learning-rate schedule spans this many epochs
   int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
-  double learning_rate = 5e-4;      // peak, after a linear warm-up (measured: README "Training")
+  double learning_rate = 5e-4;      // peak, after a linear warm-up (measured: docs/training.md)
   double warmup_fraction = 0.03;    // of all steps
   double final_lr_fraction = 0.01;  // cosine decay ends at this fraction of the peak
   double weight_decay = 0.0;        // AdamW decoupled decay
