@@ -33,7 +33,8 @@ fi
 for model in "${models[@]}"; do
   recipe="$ROOT/config/recipes/$model.yaml"
   [ -f "$recipe" ] || { echo "no recipe $recipe" >&2; exit 2; }
-  eval "$(/usr/bin/python3 "$ROOT/scripts/recipe.py" "$recipe")"
+  vars="$(/usr/bin/python3 "$ROOT/scripts/recipe.py" "$recipe")"  # exits here on a bad recipe
+  eval "$vars"
   train="" sigma=""
   for b in $TRAIN_BAGS; do train="$train $(make_bag "$model" "$b")"; done
   for b in $SIGMA_BAGS; do sigma="$sigma $(make_bag "$model" "$b")"; done

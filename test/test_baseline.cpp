@@ -238,8 +238,10 @@ TEST(CalibrationFile, RoundTripAndClearErrors) {
   expectError(replaced("degree: 2", "degree: 3"), "needs 10 coefficients");
   expectError(replaced("  apertures:\n    - {", "  apertures:\n    - {x_um: 1, y_um: 2}\n    - {"), "must list 9");
   expectError(replaced("spike_sigmas: 4", "spike_sigmas: -4"), "spike_sigmas must be >= 0");
+  // A key the format does not have is refused with its path, not ignored.
+  expectError(replaced("spike_sigmas: 4", "spike_sigma: 4"), "extraction.spike_sigma: unknown key");
   // Files from before the hot-pixel repair have no spike_sigmas: the default.
-  const Calibration old = parseCalibration(replaced("spike_sigmas: 4", "unused_key: 4"), "old.yaml");
+  const Calibration old = parseCalibration(replaced("\n  spike_sigmas: 4", ""), "old.yaml");
   EXPECT_EQ(old.extraction.spike_sigmas, kDefaultSpikeSigmas);
   EXPECT_EQ(old.extraction.spike_margin_dn, c.extraction.spike_margin_dn);
   EXPECT_TRUE(

@@ -1,17 +1,19 @@
 // Sensor configs: the shipped ones load; every kind of bad config gets an
 // error that names the file and the key.
-#include "digital_sun_sensor/sim/sensor_config.h"
-
 #include <gtest/gtest.h>
 
 #include <fstream>
 #include <regex>
 #include <sstream>
 
+#include "digital_sun_sensor/sim/sensor_config.h"
+
 namespace dss {
 namespace {
 
-std::string shipped(const std::string& name) { return std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml"; }
+std::string shipped(const std::string& name) {
+  return std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml";
+}
 
 std::string readFile(const std::string& path) {
   std::ifstream in(path);
@@ -89,6 +91,16 @@ TEST(SensorConfig, BadConfigsNameFileAndKey) {
   // Malformed YAML, with its line.
   expectError(errorOf("name: x\ndetector: {width_px: 512\n"), {"malformed YAML", "line"});
   expectError(errorOf("- just\n- a list\n"), {"mapping"});
+  // A misspelt optional key, at the top level, in a section and in an aperture, is refused with its path.
+  expectError(errorOf(replaced("  height_mm: 5.0", "  height_mm: 5.0\n  thicknes_mm: 0.1")),
+              {"mask.thicknes_mm: unknown key", "thickness_mm"});
+  expectError(errorOf(good + "subfoov: quadrant\n"), {"subfoov: unknown key"});
+  expectError(errorOf(replaced("shape: circle", "shape: circle, rotation_deg: 3")),
+              {"mask.apertures[0].rotation_deg: unknown key"});
+  // So is a --set path nobody reads (a typo would otherwise render as if nothing were said).
+  expectError(errorOf(good, {"optics.wavelenghts_um=0.5"}), {"optics.wavelenghts_um: unknown key", "wavelengths_um"});
+  expectError(errorOf(good, {"anomalies.stray_light.probabilty=0.5"}),
+              {"anomalies.stray_light.probabilty: unknown key"});
 }
 
 TEST(SensorConfig, MissingFileIsNamed) {

@@ -163,6 +163,29 @@ TEST(Sscnn, SiteSigmaLawScalesTheConstantPerImage) {
   }
 }
 
+// A metadata key the format does not have is refused with its path, at the
+// top level and inside a section; the metadata as written reads back.
+TEST(ModelFile, MetadataRejectsUnknownKeys) {
+  const Model m = createModel(shipped("thesis_ma"), "resnet10_w16", 4);
+  const std::string yaml = metadataToYaml(m.meta);
+  EXPECT_NO_THROW(metadataFromYaml(yaml, "good"));
+  auto errorOf = [](const std::string& text) -> std::string {
+    try {
+      metadataFromYaml(text, "m.dssmodel");
+    } catch (const ModelError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  EXPECT_TRUE(contains(errorOf(yaml + "\nangle_scale: 1\n"), "m.dssmodel: metadata: angle_scale: unknown key"))
+      << errorOf(yaml + "\nangle_scale: 1\n");
+  std::string nested = yaml;
+  const std::size_t at = nested.find("lattice_rows:");
+  ASSERT_NE(at, std::string::npos);
+  nested.insert(at, "lattice_row: 3\n  ");
+  EXPECT_TRUE(contains(errorOf(nested), "arch.lattice_row: unknown key")) << errorOf(nested);
+}
+
 // Untrained, the centroid branch is the plain centre of the lit sites
 // (learned weights) or their intensity-weighted centroid (value weighting,
 // and intensity weighting, which stays so whatever the branch's weights),

@@ -8,6 +8,7 @@
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/spike_filter.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/common/yaml_reader.h"
 
 namespace dss {
 namespace {
@@ -180,6 +181,14 @@ Calibration parseCalibration(const std::string& yaml_text, const std::string& or
   c.centroid_sigma_px = finite(required<double>(root, "centroid_sigma_px", origin), origin + ": centroid_sigma_px");
   if (!(c.centroid_sigma_px > 0.0)) throw CalibrationError(origin + ": centroid_sigma_px must be > 0");
   if (root["fit"]) c.fit_yaml = YAML::Dump(root["fit"]);
+  // Every other key must be one the format has (the writer emits them all):
+  // a misspelt key is refused, not ignored. The sensor section was checked
+  // by its own reader.
+  YAML::Node given = YAML::Clone(root), known = YAML::Load(toYaml(c));
+  given.remove("sensor");
+  known.remove("sensor");
+  if (const std::string unknown = unknownKeyIn(given, known); !unknown.empty())
+    throw CalibrationError(origin + ": " + unknown);
   return c;
 }
 

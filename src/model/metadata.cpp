@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/common/yaml_reader.h"
 
 namespace dss {
 namespace {
@@ -335,6 +336,10 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   }
   m.training_yaml = YAML::Dump(root["training"] ? root["training"] : YAML::Node(YAML::NodeType::Map));
   m.metrics_yaml = YAML::Dump(root["metrics"] ? root["metrics"] : YAML::Node(YAML::NodeType::Map));
+  // Every key must be one the format has (the writer emits each for the value
+  // read): a misspelt key is refused, not ignored.
+  if (const std::string unknown = unknownKeyIn(root, YAML::Load(metadataToYaml(m))); !unknown.empty())
+    throw ModelError(origin + ": metadata: " + unknown);
   return m;
 }
 

@@ -6,108 +6,10 @@
 #include <sstream>
 
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/yaml_reader.h"
 
 namespace dss {
 namespace {
-
-// Walks a YAML mapping and reports every problem as "<file>: <key.path>: what".
-class Reader {
- public:
-  Reader(const YAML::Node& node, std::string origin, std::string path)
-      : node_(node), origin_(std::move(origin)), path_(std::move(path)) {}
-
-  [[noreturn]] void fail(const std::string& key, const std::string& what) const {
-    throw ConfigError(origin_ + ": " + join(key) + ": " + what);
-  }
-
-  bool has(const std::string& key) const { return node_[key].IsDefined() && !node_[key].IsNull(); }
-
-  Reader child(const std::string& key, bool required = true) const {
-    if (!has(key)) {
-      if (required) fail(key, "missing required section");
-      return Reader(YAML::Node(YAML::NodeType::Map), origin_, join(key));
-    }
-    if (!node_[key].IsMap()) fail(key, "expected a mapping");
-    return Reader(node_[key], origin_, join(key));
-  }
-
-  template <typename T>
-  T get(const std::string& key) const {
-    if (!has(key)) fail(key, "missing required key");
-    return convert<T>(node_[key], key);
-  }
-
-  template <typename T>
-  T get(const std::string& key, const T& fallback) const {
-    return has(key) ? convert<T>(node_[key], key) : fallback;
-  }
-
-  double positive(const std::string& key) const { return checkPositive(key, get<double>(key)); }
-  double positive(const std::string& key, double fallback) const {
-    return checkPositive(key, get<double>(key, fallback));
-  }
-  double nonNegative(const std::string& key, double fallback) const {
-    double v = get<double>(key, fallback);
-    if (!(v >= 0.0)) fail(key, "must be >= 0 (got " + num(v) + ")");
-    return v;
-  }
-  double fraction(const std::string& key, double fallback) const {
-    double v = get<double>(key, fallback);
-    if (!(v >= 0.0 && v <= 1.0)) fail(key, "must be in [0, 1] (got " + num(v) + ")");
-    return v;
-  }
-
-  std::vector<double> positiveList(const std::string& key) const {
-    if (!has(key)) fail(key, "missing required key");
-    if (!node_[key].IsSequence() || node_[key].size() == 0) fail(key, "expected a non-empty list of numbers");
-    std::vector<double> out;
-    for (std::size_t i = 0; i < node_[key].size(); ++i) {
-      std::string item = key + "[" + std::to_string(i) + "]";
-      double v = convert<double>(node_[key][i], item);
-      if (!(v > 0.0)) fail(item, "must be > 0 (got " + num(v) + ")");
-      out.push_back(v);
-    }
-    return out;
-  }
-
-  const YAML::Node& node() const { return node_; }
-  const std::string& origin() const { return origin_; }
-  std::string join(const std::string& key) const { return path_.empty() ? key : path_ + "." + key; }
-
- private:
-  template <typename T>
-  T convert(const YAML::Node& n, const std::string& key) const {
-    try {
-      T v = n.as<T>();
-      if constexpr (std::is_floating_point_v<T>) {
-        if (!std::isfinite(v)) fail(key, "must be finite");
-      }
-      return v;
-    } catch (const YAML::Exception&) {
-      fail(key, std::string("wrong type: expected ") + typeName<T>() + ", got '" + YAML::Dump(n) + "'");
-    }
-  }
-  double checkPositive(const std::string& key, double v) const {
-    if (!(v > 0.0)) fail(key, "must be > 0 (got " + num(v) + ")");
-    return v;
-  }
-  template <typename T>
-  static const char* typeName() {
-    if constexpr (std::is_same_v<T, bool>) return "a boolean";
-    if constexpr (std::is_integral_v<T>) return "an integer";
-    if constexpr (std::is_floating_point_v<T>) return "a number";
-    return "a string";
-  }
-  static std::string num(double v) {
-    std::ostringstream s;
-    s << v;
-    return s.str();
-  }
-
-  YAML::Node node_;
-  std::string origin_;
-  std::string path_;
-};
 
 // "a.b.c=value": replaces (or creates) that scalar; the value is parsed as YAML.
 void applyOverride(YAML::Node& root, const std::string& spec, const std::string& origin) {
@@ -137,7 +39,7 @@ void applyOverride(YAML::Node& root, const std::string& spec, const std::string&
   chain.back()[keys.back()] = value;
 }
 
-DetectorConfig readDetector(const Reader& r) {
+DetectorConfig readDetector(const YamlReader& r) {
   DetectorConfig d;
   d.width_px = r.get<int>("width_px");
   d.height_px = r.get<int>("height_px");
@@ -147,7 +49,7 @@ DetectorConfig readDetector(const Reader& r) {
   return d;
 }
 
-ApertureConfig readAperture(const Reader& r) {
+ApertureConfig readAperture(const YamlReader& r) {
   ApertureConfig a;
   a.x_um = r.get<double>("x_um", 0.0);
   a.y_um = r.get<double>("y_um", 0.0);
@@ -170,7 +72,7 @@ ApertureConfig readAperture(const Reader& r) {
   return a;
 }
 
-MaskConfig readMask(const Reader& r) {
+MaskConfig readMask(const YamlReader& r) {
   MaskConfig m;
   m.height_mm = r.positive("height_mm");
   m.thickness_mm = r.nonNegative("thickness_mm", 0.0);
@@ -178,14 +80,12 @@ MaskConfig readMask(const Reader& r) {
   const YAML::Node& list = r.node()["apertures"];
   if (!list.IsSequence() || list.size() == 0) r.fail("apertures", "expected a non-empty list of apertures");
   for (std::size_t i = 0; i < list.size(); ++i) {
-    std::string key = "apertures[" + std::to_string(i) + "]";
-    if (!list[i].IsMap()) r.fail(key, "expected a mapping");
-    m.apertures.push_back(readAperture(Reader(list[i], r.origin(), r.join(key))));
+    m.apertures.push_back(readAperture(r.item("apertures", i)));
   }
   return m;
 }
 
-OpticsConfig readOptics(const Reader& r) {
+OpticsConfig readOptics(const YamlReader& r) {
   OpticsConfig o;
   auto mode = r.get<std::string>("mode", "fresnel");
   if (mode == "fresnel") {
@@ -204,7 +104,7 @@ OpticsConfig readOptics(const Reader& r) {
   for (std::size_t i = 0; i < o.wavelengths_um.size(); ++i) {
     if (o.wavelengths_um[i] > 20.0) r.fail("wavelengths_um", "wavelengths are in micrometres (got > 20)");
   }
-  Reader sun = r.child("sun_disk", false);
+  YamlReader sun = r.child("sun_disk", false);
   o.sun.enabled = sun.get<bool>("enabled", true);
   o.sun.angular_diameter_deg = sun.positive("angular_diameter_deg", 0.533);
   o.sun.limb_darkening_u = sun.fraction("limb_darkening_u", 0.56);
@@ -218,7 +118,7 @@ OpticsConfig readOptics(const Reader& r) {
   return o;
 }
 
-DetectorNoiseConfig readNoise(const Reader& r) {
+DetectorNoiseConfig readNoise(const YamlReader& r) {
   DetectorNoiseConfig n;
   n.shot_noise = r.get<bool>("shot_noise", true);
   n.read_noise_e = r.nonNegative("read_noise_e", 3.0);
@@ -243,6 +143,10 @@ int SensorConfig::numSubFovClasses() const {
   return subfov == SubFovType::kQuadrant ? 4 : static_cast<int>(mask.apertures.size());
 }
 
+namespace {
+SensorConfig readSensorConfig(const YamlReader& r);
+}  // namespace
+
 SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& origin,
                                const std::vector<std::string>& overrides) {
   YAML::Node root;
@@ -254,15 +158,23 @@ SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& 
   }
   if (!root.IsMap()) throw ConfigError(origin + ": expected a YAML mapping at the top level");
   for (const auto& o : overrides) applyOverride(root, o, origin);
+  try {
+    return readSensorConfig(YamlReader(root, origin));
+  } catch (const YamlError& e) {
+    throw ConfigError(e.what());
+  }
+}
 
-  Reader r(root, origin, "");
+namespace {
+
+SensorConfig readSensorConfig(const YamlReader& r) {
   SensorConfig c;
-  c.source_path = origin;
+  c.source_path = r.origin();
   c.name = r.get<std::string>("name");
   c.detector = readDetector(r.child("detector"));
   c.mask = readMask(r.child("mask"));
 
-  Reader glass = r.child("cover_glass", false);
+  YamlReader glass = r.child("cover_glass", false);
   c.cover_glass.enabled = glass.get<bool>("enabled", false);
   c.cover_glass.thickness_mm = glass.nonNegative("thickness_mm", 0.0);
   c.cover_glass.refractive_index = glass.get<double>("refractive_index", 1.5);
@@ -273,13 +185,13 @@ SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& 
 
   c.optics = readOptics(r.child("optics"));
 
-  Reader rad = r.child("radiometry", false);
+  YamlReader rad = r.child("radiometry", false);
   c.radiometry.irradiance_w_m2 = rad.positive("irradiance_w_m2", 1361.0);
   c.radiometry.nd_transmission = rad.positive("nd_transmission", 1e-3);
   c.radiometry.quantum_efficiency = rad.positive("quantum_efficiency", 0.5);
   if (c.radiometry.quantum_efficiency > 1.0) rad.fail("quantum_efficiency", "must be <= 1");
 
-  Reader exp = r.child("exposure", false);
+  YamlReader exp = r.child("exposure", false);
   auto exp_mode = exp.get<std::string>("mode", "auto");
   if (exp_mode == "auto") {
     c.exposure.mode = ExposureMode::kAuto;
@@ -293,13 +205,13 @@ SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& 
 
   c.noise = readNoise(r.child("detector_noise"));
 
-  Reader thr = r.child("threshold", false);
+  YamlReader thr = r.child("threshold", false);
   c.threshold.enabled = thr.get<bool>("enabled", false);
   c.threshold.level_fraction = thr.fraction("level_fraction", 0.9);
   c.threshold.rescale = thr.get<bool>("rescale", true);
   if (c.threshold.level_fraction >= 1.0) thr.fail("level_fraction", "must be < 1");
 
-  Reader ab = r.child("as_built", false);
+  YamlReader ab = r.child("as_built", false);
   c.as_built.height_sigma_um = ab.nonNegative("height_sigma_um", 0.0);
   c.as_built.offset_sigma_um = ab.nonNegative("offset_sigma_um", 0.0);
   c.as_built.rotation_sigma_deg = ab.nonNegative("rotation_sigma_deg", 0.0);
@@ -307,11 +219,11 @@ SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& 
   c.as_built.aperture_position_sigma_um = ab.nonNegative("aperture_position_sigma_um", 0.0);
   c.as_built.aperture_diameter_sigma_um = ab.nonNegative("aperture_diameter_sigma_um", 0.0);
 
-  Reader an = r.child("anomalies", false);
-  Reader stray = an.child("stray_light", false);
+  YamlReader an = r.child("anomalies", false);
+  YamlReader stray = an.child("stray_light", false);
   c.anomalies.stray_light_probability = stray.fraction("probability", 0.0);
   c.anomalies.stray_light_max_fraction = stray.nonNegative("max_fraction", 0.2);
-  Reader hot = an.child("hot_pixels", false);
+  YamlReader hot = an.child("hot_pixels", false);
   c.anomalies.hot_pixel_count = hot.get<int>("count", 0);
   if (c.anomalies.hot_pixel_count < 0) hot.fail("count", "must be >= 0");
   c.anomalies.hot_pixel_min_e_per_s = hot.positive("min_e_per_s", 1e5);
@@ -319,14 +231,14 @@ SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& 
   if (c.anomalies.hot_pixel_max_e_per_s < c.anomalies.hot_pixel_min_e_per_s) {
     hot.fail("max_e_per_s", "must be >= min_e_per_s");
   }
-  Reader debris = an.child("debris", false);
+  YamlReader debris = an.child("debris", false);
   c.anomalies.debris_probability = debris.fraction("probability", 0.0);
   c.anomalies.debris_max_blocked_fraction = debris.fraction("max_blocked_fraction", 0.3);
-  Reader ghost = an.child("ghost", false);
+  YamlReader ghost = an.child("ghost", false);
   c.anomalies.ghost_probability = ghost.fraction("probability", 0.0);
   c.anomalies.ghost_reflectance = ghost.fraction("reflectance", 0.02);
 
-  Reader fov = r.child("fov");
+  YamlReader fov = r.child("fov");
   c.fov.alpha_max_deg = fov.positive("alpha_max_deg");
   c.fov.beta_max_deg = fov.positive("beta_max_deg");
   if (c.fov.alpha_max_deg >= 89.0 || c.fov.beta_max_deg >= 89.0) fov.fail("alpha_max_deg", "must be < 89");
@@ -339,8 +251,11 @@ SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& 
   } else {
     r.fail("subfov", "unknown sub-FOV scheme '" + subfov + "' (expected quadrant or nearest_aperture)");
   }
+  r.rejectUnknownKeys();  // a misspelt key or --set path is an error, not a default
   return c;
 }
+
+}  // namespace
 
 double DetectorNoiseConfig::darkCurrentAtTemperatureEPerS() const {
   return dark_current_e_per_s * std::pow(2.0, (temperature_c - dark_reference_temp_c) / dark_doubling_temp_c);
