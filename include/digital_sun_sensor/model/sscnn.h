@@ -7,46 +7,18 @@
 #pragma once
 
 #include <torch/nn/module.h>
-#include <torch/nn/modules/batchnorm.h>
 #include <torch/nn/modules/linear.h>
 #include <torch/nn/modules/normalization.h>
 
 #include <array>
+#include <optional>
 #include <vector>
 
 #include "digital_sun_sensor/model/arch.h"
+#include "digital_sun_sensor/model/sparse_layers.h"
 #include "digital_sun_sensor/sparse/sparse_tensor.h"
 
 namespace dss {
-
-// Submanifold (stride 1, output sites = input sites) or strided sparse
-// convolution; weight [k*k, C_in, C_out].
-class SparseConvImpl : public torch::nn::Module {
- public:
-  SparseConvImpl(int in_channels, int out_channels, int kernel_size, int stride, bool bias);
-  sparse::SparseTensor forward(const sparse::SparseTensor& x);
-  // Same weights as a dense torch::conv2d over a [B, C, H, W] map.
-  torch::Tensor forwardDense(const torch::Tensor& x);
-  // 1x1 stride-s shortcut on the sites of the k x k stride-s main path.
-  sparse::SparseTensor forwardShortcut(const sparse::SparseTensor& x, int main_kernel_size);
-
-  torch::Tensor weight, bias;
-  int kernel_size, stride;
-};
-
-class ResidualBlockImpl : public torch::nn::Module {
- public:
-  ResidualBlockImpl(int in_channels, int out_channels, int stride, bool batch_norm);
-  sparse::SparseTensor forward(const sparse::SparseTensor& x);
-  torch::Tensor forwardDense(const torch::Tensor& x);
-
- private:
-  torch::Tensor norm(torch::nn::BatchNorm1d& bn, const torch::Tensor& f);
-  torch::Tensor normDense(torch::nn::BatchNorm1d& bn, const torch::Tensor& f);
-  std::shared_ptr<SparseConvImpl> conv1_, conv2_, shortcut_;
-  torch::nn::BatchNorm1d bn1_{nullptr}, bn2_{nullptr};
-  int stride_;
-};
 
 // Raw network outputs, normalized units.
 struct SscnnOutput {
@@ -86,6 +58,14 @@ class SscnnNetImpl : public torch::nn::Module {
   // prior (no-op unless arch.geometric_prior_size > 0).
   void initGeometricPrior(const torch::Tensor& table, double extent_x, double extent_y);
   std::int64_t parameterCount() const;
+
+  // The variance head's level, the sigma interface (model/sigma.cpp): adds to
+  // the predicted log variance of the normalized angles, per axis;
+  void shiftLogVariance(double alpha, double beta);
+  // makes it these constants for every image (the head's weights zeroed);
+  void setConstantLogVariance(double alpha, double beta);
+  // those constants while the head's weights are all zero, else nullopt.
+  std::optional<std::array<double, 2>> constantLogVariance() const;
 
  private:
   // Spot read-out per image from site weights w [N, 1], positions xy [N, 2],

@@ -1,0 +1,29 @@
+// Physics priors of a fresh model, from the sensor's nominal geometry: the
+// slope from the spot centroid to the angles, and for wide fields a table of
+// the angles over the spot position. Training then learns corrections.
+#pragma once
+
+#include <torch/types.h>
+
+#include <utility>
+
+#include "digital_sun_sensor/sim/sensor_config.h"
+
+namespace dss {
+
+// d(angle / angle_scale) / d(normalized centroid) per axis of the nominal
+// sensor (pinhole + refraction), by central differences at normal incidence;
+// (0, 0) when no ray reaches the detector there.
+std::pair<double, double> centroidSlopes(const SensorConfig& config, double angle_scale_rad);
+
+// The nominal geometry's angles (normalized) over a grid of lattice-centre
+// spot positions spanning the field of view plus 10 %, by inverting the ray
+// trace (baseline solveSun) at each node; nodes no ray reaches copy their
+// neighbour toward the centre.
+struct GeometricPrior {
+  torch::Tensor table;  // [2, size, size]
+  double extent_x = 1.0, extent_y = 1.0;
+};
+GeometricPrior geometricPrior(const SensorConfig& config, int size, double angle_scale_rad);
+
+}  // namespace dss
