@@ -235,6 +235,9 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
   TrainOptions other_corrections = options;
   other_corrections.feature_corrections = "off";
   EXPECT_NE(resumeError(other_corrections, train).find("feature_corrections"), std::string::npos);
+  TrainOptions other_phase = options;
+  other_phase.lattice_phase = "whole_spots";
+  EXPECT_NE(resumeError(other_phase, train).find("lattice_phase"), std::string::npos);
   TrainingSet fewer{train.spec()};
   for (std::size_t i = 1; i < train.size(); ++i) fewer.add(train.samples()[i]);
   EXPECT_NE(resumeError(options, fewer).find("different training data"), std::string::npos);
@@ -245,6 +248,8 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
   EXPECT_NE(resumeError(options, train).find("checksum"), std::string::npos);
   writeFileAtomic(options.checkpoint_path, "hello");
   EXPECT_NE(resumeError(options, train).find("not a digital_sun_sensor training checkpoint"), std::string::npos);
+  writeFileAtomic(options.checkpoint_path, "DSSCKPT1" + std::string(40, 'x'));
+  EXPECT_NE(resumeError(options, train).find("older format (DSSCKPT1)"), std::string::npos);
   std::remove(options.checkpoint_path.c_str());
   EXPECT_NE(resumeError(options, train).find("bad.ckpt"), std::string::npos);
 

@@ -1,32 +1,23 @@
-// The model file: "DSSMODEL", version, lengths, metadata YAML, weights (torch
-// archive by name), FNV-1a checksum; atomic save, validated load.
+// The model file: the package's container (magic "DSSMODEL", version 2) with
+// two sections, the metadata YAML and the weights (torch archive by name);
+// atomic save, validated load.
 #include <torch/serialize/input-archive.h>
 #include <torch/serialize/output-archive.h>
 
-#include <cstring>
 #include <sstream>
 
+#include "digital_sun_sensor/common/container.h"
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/model/model.h"
 
 namespace dss {
 namespace {
 
-constexpr char kMagic[8] = {'D', 'S', 'S', 'M', 'O', 'D', 'E', 'L'};
-constexpr std::uint32_t kVersion = 1;
-constexpr std::size_t kHeaderBytes = 8 + 4 + 4 + 8 + 8;
-
-template <typename T>
-void put(std::string& out, T value) {
-  out.append(reinterpret_cast<const char*>(&value), sizeof(T));
-}
-
-template <typename T>
-T take(const std::string& in, std::size_t offset) {
-  T value;
-  std::memcpy(&value, in.data() + offset, sizeof(T));
-  return value;
-}
+constexpr char kMagic[9] = "DSSMODEL";
+// 2: the package's container (common/container); 1: the same bytes for two
+// sections with the section count field reserved as 0 (still read).
+constexpr std::uint32_t kVersion = 2;
+constexpr std::uint32_t kLegacyVersion = 1;
 
 }  // namespace
 
@@ -37,16 +28,7 @@ std::string serializeModel(const Model& model) {
   for (const auto& b : model.net->named_buffers()) archive.write(b.key(), b.value(), /*is_buffer=*/true);
   std::ostringstream weights_stream;
   archive.save_to(weights_stream);
-  const std::string weights = weights_stream.str();
-  std::string out(kMagic, sizeof(kMagic));
-  put<std::uint32_t>(out, kVersion);
-  put<std::uint32_t>(out, 0);
-  put<std::uint64_t>(out, meta.size());
-  put<std::uint64_t>(out, weights.size());
-  out += meta;
-  out += weights;
-  put<std::uint64_t>(out, fnv1a64(out.data(), out.size()));
-  return out;
+  return packContainer(kMagic, kVersion, {meta, weights_stream.str()});
 }
 
 void saveModel(const Model& model, const std::string& path) { writeFileAtomic(path, serializeModel(model)); }
@@ -62,29 +44,27 @@ Model loadModel(const std::string& path, const SensorConfig* expected) {
 }
 
 Model deserializeModel(const std::string& bytes, const std::string& origin, const SensorConfig* expected) {
-  if (bytes.size() < kHeaderBytes + 8 || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
-    throw ModelError(origin + ": not a digital_sun_sensor model (bad magic or too short: " +
-                     std::to_string(bytes.size()) + " bytes)");
-  const auto version = take<std::uint32_t>(bytes, 8);
-  if (version != kVersion)
-    throw ModelError(origin + ": format version " + std::to_string(version) + " (this build reads " +
-                     std::to_string(kVersion) + ")");
-  const auto meta_bytes = take<std::uint64_t>(bytes, 16), weight_bytes = take<std::uint64_t>(bytes, 24);
-  const std::uint64_t expected_size = kHeaderBytes + meta_bytes + weight_bytes + 8;
-  if (meta_bytes > bytes.size() || weight_bytes > bytes.size() || expected_size != bytes.size())
-    throw ModelError(origin + ": truncated or padded: " + std::to_string(bytes.size()) + " bytes, header says " +
-                     std::to_string(expected_size));
-  if (fnv1a64(bytes.data(), bytes.size() - 8) != take<std::uint64_t>(bytes, bytes.size() - 8))
-    throw ModelError(origin + ": checksum mismatch (the file is corrupt)");
+  Container file;
+  try {
+    file = unpackContainer(bytes, kMagic, "model", origin, /*legacy_sections=*/2);
+  } catch (const ContainerError& e) {
+    throw ModelError(e.what());
+  }
+  if ((file.version != kVersion && file.version != kLegacyVersion) || file.sections.size() != 2)
+    throw ModelError(origin + ": format version " + std::to_string(file.version) + " with " +
+                     std::to_string(file.sections.size()) +
+                     " sections (this build reads versions 1 and 2, 2 sections)");
+  const std::string& metadata = file.sections[0];
+  const std::string& weight_bytes = file.sections[1];
 
   Model m;
-  m.meta = metadataFromYaml(bytes.substr(kHeaderBytes, meta_bytes), origin);
+  m.meta = metadataFromYaml(metadata, origin);
   if (expected) checkSensorCompatible(m.meta, *expected, origin);
   m.net = std::make_shared<SscnnNetImpl>(m.meta.arch);
 
   torch::serialize::InputArchive archive;
   try {
-    std::istringstream weights(bytes.substr(kHeaderBytes + meta_bytes, weight_bytes));
+    std::istringstream weights(weight_bytes);
     archive.load_from(weights);
   } catch (const c10::Error& e) {
     throw ModelError(origin + ": weights are unreadable: " + e.what_without_backtrace());

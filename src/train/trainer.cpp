@@ -13,6 +13,7 @@
 #include <numeric>
 #include <sstream>
 
+#include "digital_sun_sensor/common/container.h"
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/model/input_envelope.h"
@@ -27,7 +28,12 @@ namespace dss {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-constexpr char kCheckpointMagic[8] = {'D', 'S', 'S', 'C', 'K', 'P', 'T', '1'};
+// Checkpoints are the package's container (common/container): state YAML,
+// current model file, best model file, optimizer state. (Checkpoints of the
+// earlier "DSSCKPT1" framing are refused by name: they were made by an older
+// build and resume there.)
+constexpr char kCheckpointMagic[9] = "DSSCKPNT";
+constexpr std::uint32_t kCheckpointVersion = 1;
 
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
@@ -43,38 +49,35 @@ std::uint64_t fingerprint(const TrainingSet& set) {
   return h;
 }
 
-// Length-prefixed sections after the magic, FNV-1a checksum at the end.
-std::string packSections(const std::vector<std::string>& sections) {
-  std::string out(kCheckpointMagic, sizeof(kCheckpointMagic));
-  for (const auto& s : sections) {
-    const std::uint64_t n = s.size();
-    out.append(reinterpret_cast<const char*>(&n), 8);
-    out += s;
+// Copies every tensor of `to` from the tensor of the same name and shape in
+// `from`; a missing or differently shaped one is a CheckpointError.
+void copyTensorsByName(const torch::OrderedDict<std::string, torch::Tensor>& from,
+                       torch::OrderedDict<std::string, torch::Tensor> to, const std::string& origin) {
+  for (auto& item : to) {
+    const torch::Tensor* source = from.find(item.key());
+    if (!source) throw CheckpointError(origin + ": the checkpoint's model lacks tensor '" + item.key() + "'");
+    if (source->sizes() != item.value().sizes())
+      throw CheckpointError(origin + ": tensor '" + item.key() + "' has another shape in the checkpoint");
+    item.value().copy_(*source);
   }
-  const std::uint64_t sum = fnv1a64(out.data(), out.size());
-  out.append(reinterpret_cast<const char*>(&sum), 8);
-  return out;
 }
 
-std::vector<std::string> unpackSections(const std::string& bytes, std::size_t count, const std::string& origin) {
-  if (bytes.size() < sizeof(kCheckpointMagic) + 8 || std::memcmp(bytes.data(), kCheckpointMagic, 8) != 0)
-    throw CheckpointError(origin + ": not a digital_sun_sensor training checkpoint");
-  std::uint64_t sum;
-  std::memcpy(&sum, bytes.data() + bytes.size() - 8, 8);
-  if (fnv1a64(bytes.data(), bytes.size() - 8) != sum)
-    throw CheckpointError(origin + ": checksum mismatch (truncated or corrupt)");
-  std::vector<std::string> sections;
-  std::size_t at = sizeof(kCheckpointMagic);
-  for (std::size_t i = 0; i < count; ++i) {
-    std::uint64_t n;
-    if (at + 8 > bytes.size() - 8) throw CheckpointError(origin + ": truncated section table");
-    std::memcpy(&n, bytes.data() + at, 8);
-    at += 8;
-    if (n > bytes.size() - 8 - at) throw CheckpointError(origin + ": truncated section");
-    sections.push_back(bytes.substr(at, n));
-    at += n;
+std::vector<std::string> unpackCheckpoint(const std::string& bytes, const std::string& origin) {
+  if (bytes.rfind("DSSCKPT1", 0) == 0)
+    throw CheckpointError(origin +
+                          ": a checkpoint of an older format (DSSCKPT1): resume it with the build that wrote "
+                          "it, or start the training afresh");
+  Container file;
+  try {
+    file = unpackContainer(bytes, kCheckpointMagic, "training checkpoint", origin);
+  } catch (const ContainerError& e) {
+    throw CheckpointError(e.what());
   }
-  return sections;
+  if (file.version != kCheckpointVersion || file.sections.size() != 4)
+    throw CheckpointError(origin + ": checkpoint format version " + std::to_string(file.version) + " with " +
+                          std::to_string(file.sections.size()) + " sections (this build reads version " +
+                          std::to_string(kCheckpointVersion) + ", 4 sections)");
+  return file.sections;
 }
 
 }  // namespace
@@ -350,7 +353,8 @@ struct Trainer::Impl {
 
   void saveCheckpoint(const std::string& path, double elapsed_s) const {
     writeFileAtomic(path,
-                    packSections({stateYaml(elapsed_s), serializeModel(model), best_model_bytes, optimizerBytes()}));
+                    packContainer(kCheckpointMagic, kCheckpointVersion,
+                                  {stateYaml(elapsed_s), serializeModel(model), best_model_bytes, optimizerBytes()}));
   }
 
   void resume(const std::string& path) {
@@ -361,7 +365,7 @@ struct Trainer::Impl {
       throw CheckpointError(std::string("checkpoint: ") + e.what());
     }
     const std::string origin = "checkpoint '" + path + "'";
-    const auto sections = unpackSections(bytes, 4, origin);
+    const auto sections = unpackCheckpoint(bytes, origin);
     YAML::Node state;
     try {
       state = YAML::Load(sections[0]);
@@ -394,11 +398,9 @@ struct Trainer::Impl {
     try {
       Model restored = deserializeModel(sections[1], origin, &sensor);
       torch::NoGradGuard no_grad;
-      // Same architecture, so the same tensors in the same order.
-      auto dst = model.net->parameters(), src = restored.net->parameters();
-      for (std::size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
-      auto dst_buffers = model.net->buffers(), src_buffers = restored.net->buffers();
-      for (std::size_t i = 0; i < dst_buffers.size(); ++i) dst_buffers[i].copy_(src_buffers[i]);
+      // By name and shape, as a model file is read.
+      copyTensorsByName(restored.net->named_parameters(), model.net->named_parameters(), origin);
+      copyTensorsByName(restored.net->named_buffers(), model.net->named_buffers(), origin);
       best_model_bytes = sections[2];
       torch::serialize::InputArchive archive;
       std::istringstream stream(sections[3]);

@@ -1,9 +1,10 @@
 // An SSCNN model: network + metadata, the model file (atomic save, validated
 // load) and decoding of network outputs into angles, variances and classes.
 //
-// File layout (little-endian): "DSSMODEL", u32 version, u32 reserved,
-// u64 metadata bytes, u64 weight bytes, metadata YAML, weights (torch
-// archive of every parameter and buffer by name), u64 FNV-1a of all before.
+// File layout: the package's container (common/container.h), magic
+// "DSSMODEL", version 2, sections: metadata YAML, weights (torch archive of
+// every parameter and buffer by name). Version 1 files (the same bytes with
+// the section count field reserved as 0) are still read.
 #pragma once
 
 #include <array>
