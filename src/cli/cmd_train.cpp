@@ -8,7 +8,7 @@
 #include "digital_sun_sensor/common/json.h"
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
-#include "digital_sun_sensor/train/trainer.h"
+#include "digital_sun_sensor/train/training_job.h"
 #include "progress.h"
 
 namespace dss::cli {
@@ -59,6 +59,12 @@ int runTrain(int argc, char** argv) {
           {"patience", "N", "stop after N epochs without validation improvement (0: never)",
            std::to_string(defaults.patience_epochs), false, false},
           {"val-fraction", "F", "fraction of the images held out for validation", "0.1", false, false},
+          {"val-max", "N", "validate on at most N held-out images (evenly spaced)",
+           std::to_string(defaults.validation_max), false, false},
+          {"class-loss-weight", "W", "weight of the sub-FOV cross-entropy in the loss",
+           defaultText(defaults.class_loss_weight), false, false},
+          {"image-topic", "TOPIC", "image topic in the bags", DatasetTopics{}.image, false, false},
+          {"truth-topic", "TOPIC", "truth topic in the bags (SunAngles)", DatasetTopics{}.truth, false, false},
           {"seed", "S", "seed of weights, split, data order and augmentation", std::to_string(defaults.seed), false,
            false},
           {"max-minutes", "M", "stop with a checkpoint after M minutes of training (0: no limit)", "0", false, false},
@@ -81,6 +87,8 @@ int runTrain(int argc, char** argv) {
   options.learning_rate = args.getDouble("lr");
   options.weight_decay = args.getDouble("weight-decay");
   options.patience_epochs = static_cast<int>(args.getInt("patience"));
+  options.validation_max = static_cast<std::size_t>(args.getInt("val-max"));
+  options.class_loss_weight = args.getDouble("class-loss-weight");
   options.seed = static_cast<std::uint64_t>(args.getInt("seed"));
   options.max_minutes = args.getDouble("max-minutes");
   options.checkpoint_interval_s = 60.0 * args.getDouble("checkpoint-minutes");
@@ -90,50 +98,45 @@ int runTrain(int argc, char** argv) {
   options.checkpoint_path = args.has("checkpoint") ? args.get("checkpoint")
                             : args.has("resume")   ? args.get("resume")
                                                    : args.get("out") + ".ckpt";
-  const double val_fraction = args.getDouble("val-fraction");
-  if (!(val_fraction >= 0 && val_fraction < 1)) throw UsageError("dss train: --val-fraction must be in [0, 1)");
-  options.validate();
+  TrainingJobSpec job;
+  job.output = args.get("out");
+  for (const auto& bag : args.all("data")) job.data_description += (job.data_description.empty() ? "" : " ") + bag;
+  job.validation_fraction = args.getDouble("val-fraction");
+  job.resume_from = args.has("resume") ? args.get("resume") : "";
+  job.options = options;
+  try {
+    job.validate();
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(std::string("dss train: ") + e.what());
+  }
 
   std::optional<SensorConfig> sensor;
   if (args.has("sensor")) sensor = loadSensorConfig(args.get("sensor"), args.all("set"));
+  DatasetTopics topics;
+  topics.image = args.get("image-topic");
+  topics.truth = args.get("truth-topic");
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
   std::unique_ptr<Progress> reading;
   TrainingData data =
-      loadTrainingData(args.all("data"), sensor, {}, max_images, [&](std::uint64_t done, std::uint64_t total) {
+      loadTrainingData(args.all("data"), sensor, topics, max_images, [&](std::uint64_t done, std::uint64_t total) {
         if (!reading) reading = std::make_unique<Progress>("train: reading bags", total);
         reading->update(done);
       });
   if (reading) reading->finish();
   std::cerr << "read " << describe(data) << "; " << data.samples.memoryBytes() / (1 << 20) << " MiB in memory\n";
-  TrainingSet train{data.samples.spec()}, validation{data.samples.spec()};
-  data.samples.split(val_fraction, options.seed, train, validation);
-  std::cerr << "sensor " << data.sensor.name << ": " << train.size() << " training, " << validation.size()
-            << " validation images\n";
 
-  Trainer trainer(data.sensor, std::move(train), std::move(validation), options);
-  if (args.has("resume")) {
-    trainer.resume(args.get("resume"));
-    std::cerr << "resumed from " << args.get("resume") << "\n";
-  }
   std::signal(SIGINT, onStopSignal);
   std::signal(SIGTERM, onStopSignal);
-  const TrainResult result =
-      trainer.run([](const TrainProgress& p) { std::cerr << formatProgress(p) << std::endl; }, g_stop);
+  const TrainingJobResult outcome = runTrainingJob(
+      data.sensor, data.samples, job, [](const std::string& line) { std::cerr << line << "\n"; },
+      [](const TrainProgress& p) { std::cerr << formatProgress(p) << std::endl; }, g_stop);
   std::signal(SIGINT, SIG_DFL);
   std::signal(SIGTERM, SIG_DFL);
-
-  std::string description;
-  for (const auto& bag : args.all("data")) description += (description.empty() ? "" : " ") + bag;
-  const bool complete = result.stop == TrainStop::finished || result.stop == TrainStop::early_stopped;
-  if (complete) {
-    trainer.saveModel(args.get("out"), description);
-    std::cerr << "wrote " << args.get("out") << "\n";
-  } else {
-    std::cerr << "stopped (" << toString(result.stop) << "); checkpoint " << options.checkpoint_path
-              << "; continue with: dss train ... --resume " << options.checkpoint_path << "\n";
-  }
+  if (!outcome.model_written) std::cerr << "continue with: dss train ... --resume " << options.checkpoint_path << "\n";
+  const TrainResult& result = outcome.result;
+  const bool complete = outcome.model_written;
   const auto& p = result.last;
-  std::cout << "{\"command\": \"train\", \"sensor\": \"" << data.sensor.name << "\", \"arch\": \"" << trainer.archName()
+  std::cout << "{\"command\": \"train\", \"sensor\": \"" << data.sensor.name << "\", \"arch\": \"" << outcome.arch
             << "\", \"stop\": \"" << toString(result.stop)
             << "\", \"model\": " << (complete ? "\"" + args.get("out") + "\"" : "null") << ", \"checkpoint\": \""
             << options.checkpoint_path << "\", \"epochs_completed\": " << p.epoch + (p.epoch_end ? 1 : 0)

@@ -15,7 +15,7 @@
 
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/ros/node_params.h"
-#include "digital_sun_sensor/train/trainer.h"
+#include "digital_sun_sensor/train/training_job.h"
 
 namespace dss {
 namespace {
@@ -79,9 +79,13 @@ class TrainerNode {
     if (output.empty()) throw std::runtime_error("~output is empty: name the model file to write");
     TrainOptions options = optionsFromParams(pnh_);
     options.checkpoint_path = pnh_.param<std::string>("checkpoint", output + ".ckpt");
-    const bool resume = pnh_.param("resume", false);
-    const double val_fraction = pnh_.param("validation_fraction", 0.1);
-    if (!(val_fraction >= 0 && val_fraction < 1)) throw std::runtime_error("~validation_fraction must be in [0, 1)");
+    TrainingJobSpec job;
+    job.output = output;
+    for (const auto& bag : bags) job.data_description += (job.data_description.empty() ? "" : " ") + bag;
+    job.validation_fraction = pnh_.param("validation_fraction", 0.1);
+    if (pnh_.param("resume", false) && fileExists(options.checkpoint_path)) job.resume_from = options.checkpoint_path;
+    job.options = options;
+    job.validate();
     std::optional<SensorConfig> sensor;
     const std::string sensor_name = pnh_.param<std::string>("sensor_config", "");
     if (!sensor_name.empty()) sensor = loadSensorConfig(resolveSensorConfigPath(sensor_name));
@@ -102,41 +106,26 @@ class TrainerNode {
                                            updater_.update();
                                          });
     ROS_INFO("read %s", describe(data).c_str());
-    TrainingSet train{data.samples.spec()}, validation{data.samples.spec()};
-    data.samples.split(val_fraction, options.seed, train, validation);
-    ROS_INFO("sensor %s: %zu training, %zu validation images; checkpoint %s", data.sensor.name.c_str(), train.size(),
-             validation.size(), options.checkpoint_path.c_str());
 
-    Trainer trainer(data.sensor, std::move(train), std::move(validation), options);
-    if (resume && fileExists(options.checkpoint_path)) {
-      trainer.resume(options.checkpoint_path);
-      ROS_INFO("resumed from %s", options.checkpoint_path.c_str());
-    }
     msg_.checkpoint = options.checkpoint_path;
     setState("training", "training");
-    const TrainResult result = trainer.run(
+    const TrainingJobResult outcome = runTrainingJob(
+        data.sensor, data.samples, job, [](const std::string& line) { ROS_INFO("%s", line.c_str()); },
         [&](const TrainProgress& p) {
           ROS_INFO("%s", formatProgress(p).c_str());
           fill(p);
           publish();
         },
         g_stop);
-
-    const bool complete = result.stop == TrainStop::finished || result.stop == TrainStop::early_stopped;
-    std::string description;
-    for (const auto& bag : bags) description += (description.empty() ? "" : " ") + bag;
-    if (complete) {
-      trainer.saveModel(output, description);
+    if (outcome.model_written) {
       msg_.model = output;
-      ROS_INFO("wrote %s (%s after %.0f s)", output.c_str(), toString(result.stop), result.wall_s);
     } else {
-      ROS_WARN("stopped (%s); checkpoint %s; relaunch with resume:=true to continue", toString(result.stop),
-               options.checkpoint_path.c_str());
+      ROS_WARN("stopped (%s); relaunch with resume:=true to continue", toString(outcome.result.stop));
     }
-    fill(result.last);
-    setState(toString(result.stop), complete ? "model written" : "checkpointed");
+    fill(outcome.result.last);
+    setState(toString(outcome.result.stop), outcome.model_written ? "model written" : "checkpointed");
     publish();
-    return complete ? 0 : 3;
+    return outcome.model_written ? 0 : 3;
   }
 
   void fill(const TrainProgress& p) {
