@@ -1,84 +1,26 @@
+// The trainer: set-up (fresh weights or an --init model), the run loop,
+// the model written; options and progress lines.
 #include "digital_sun_sensor/train/trainer.h"
 
-#include <torch/optim/adamw.h>
-#include <torch/serialize/input-archive.h>
-#include <torch/serialize/output-archive.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
-#include <numeric>
-#include <sstream>
 
-#include "digital_sun_sensor/common/container.h"
-#include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
-#include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sparse/threads.h"
-#include "digital_sun_sensor/train/loss.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
-#include "digital_sun_sensor/train/validation_error.h"
+#include "trainer_impl.h"
 
 namespace dss {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-// Checkpoints are the package's container (common/container): state YAML,
-// current model file, best model file, optimizer state. (Checkpoints of the
-// earlier "DSSCKPT1" framing are refused by name: they were made by an older
-// build and resume there.)
-constexpr char kCheckpointMagic[9] = "DSSCKPNT";
-constexpr std::uint32_t kCheckpointVersion = 1;
-
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
-
-// Identifies the training data: a resumed run must see exactly the same samples.
-std::uint64_t fingerprint(const TrainingSet& set) {
-  std::uint64_t h = splitmix64(set.size());
-  for (const auto& s : set.samples()) {
-    std::uint64_t a, b;
-    std::memcpy(&a, &s.alpha_rad, 8);
-    std::memcpy(&b, &s.beta_rad, 8);
-    h = splitmix64(h ^ a) ^ splitmix64(b + s.pixels.size());
-  }
-  return h;
-}
-
-// Copies every tensor of `to` from the tensor of the same name and shape in
-// `from`; a missing or differently shaped one is a CheckpointError.
-void copyTensorsByName(const torch::OrderedDict<std::string, torch::Tensor>& from,
-                       torch::OrderedDict<std::string, torch::Tensor> to, const std::string& origin) {
-  for (auto& item : to) {
-    const torch::Tensor* source = from.find(item.key());
-    if (!source) throw CheckpointError(origin + ": the checkpoint's model lacks tensor '" + item.key() + "'");
-    if (source->sizes() != item.value().sizes())
-      throw CheckpointError(origin + ": tensor '" + item.key() + "' has another shape in the checkpoint");
-    item.value().copy_(*source);
-  }
-}
-
-std::vector<std::string> unpackCheckpoint(const std::string& bytes, const std::string& origin) {
-  if (bytes.rfind("DSSCKPT1", 0) == 0)
-    throw CheckpointError(origin +
-                          ": a checkpoint of an older format (DSSCKPT1): resume it with the build that wrote "
-                          "it, or start the training afresh");
-  Container file;
-  try {
-    file = unpackContainer(bytes, kCheckpointMagic, "training checkpoint", origin);
-  } catch (const ContainerError& e) {
-    throw CheckpointError(e.what());
-  }
-  if (file.version != kCheckpointVersion || file.sections.size() != 4)
-    throw CheckpointError(origin + ": checkpoint format version " + std::to_string(file.version) + " with " +
-                          std::to_string(file.sections.size()) + " sections (this build reads version " +
-                          std::to_string(kCheckpointVersion) + ", 4 sections)");
-  return file.sections;
-}
 
 }  // namespace
 
@@ -157,294 +99,85 @@ void TrainOptions::validate() const {
           "augmentation threshold_max_fraction must be in [0, 1)");
 }
 
-struct Trainer::Impl {
-  SensorConfig sensor;
-  TrainingSet train, validation;
-  TrainOptions options;
-  Model model;
-  std::unique_ptr<torch::optim::AdamW> optimizer;
-  std::uint64_t data_fingerprint = 0;
-
-  // Position and history: everything a resumed run needs besides weights.
-  int epoch = 0;
-  std::int64_t step_in_epoch = 0;
-  double elapsed_before_s = 0.0;  // wall time of earlier runs
-  double best_val_mean_deg = 0.0;
-  int best_epoch = -1;
-  std::string best_model_bytes;  // serialized best model ("" until validated)
-  TrainProgress last;
-
-  Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOptions o)
-      : sensor(s), train(std::move(t)), validation(std::move(v)), options(std::move(o)) {
-    options.validate();
-    if (train.size() == 0) throw std::invalid_argument("no training samples");
-    sparse::configureThreads(options.aten_threads, options.blas_threads);
-    if (!options.init_model.empty()) {
-      model = loadModel(options.init_model, &sensor);  // ModelError names the file and the mismatch
-      // Its angle correction fitted that network's bias, which training changes.
-      model.meta.angle_correction = AngleCorrection{};
-      // Validation reads single images, as training does; calibrate-sigma
-      // sets the symmetry again where wanted.
-      model.meta.inference_symmetry = InferenceSymmetry::kNone;
-      if (options.arch.empty()) options.arch = model.meta.arch.name;
-      if (model.meta.arch.name != options.arch)
-        throw std::invalid_argument("training option init_model: " + options.init_model + " is " +
-                                    model.meta.arch.name + ", not " + options.arch);
-      const std::string weighting = centroidWeightingName(model.meta.arch.centroid_weighting);
-      if (options.centroid_weighting.empty()) options.centroid_weighting = weighting;
-      if (options.centroid_weighting != weighting)
-        throw std::invalid_argument("training option init_model: " + options.init_model + " has centroid weighting " +
-                                    weighting + ", not " + options.centroid_weighting);
-      const std::string corrections = model.meta.arch.feature_corrections ? "on" : "off";
-      if (options.feature_corrections.empty()) options.feature_corrections = corrections;
-      if (options.feature_corrections != corrections)
-        throw std::invalid_argument("training option init_model: " + options.init_model + " has feature corrections " +
-                                    corrections + ", not " + options.feature_corrections);
-      const std::string phase = model.meta.arch.lattice_spotwise_phase ? "spotwise" : "whole_spots";
-      if (options.lattice_phase.empty()) options.lattice_phase = phase;
-      if (model.meta.arch.latticeHead() && options.lattice_phase != phase)
-        throw std::invalid_argument("training option init_model: " + options.init_model + " has lattice phase " +
-                                    phase + ", not " + options.lattice_phase);
-    } else {
-      if (options.arch.empty()) options.arch = defaultArchName();
-      if (options.centroid_weighting.empty()) options.centroid_weighting = "learned";
-      ArchSpec arch = archPreset(options.arch, sensor.numSubFovClasses());
-      arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
-      if (options.feature_corrections.empty()) options.feature_corrections = "on";
-      arch.feature_corrections = options.feature_corrections == "on";
-      if (options.lattice_phase.empty()) options.lattice_phase = "spotwise";
-      HeadOptions head;
-      head.lattice_spotwise_phase = options.lattice_phase == "spotwise";
-      model = createModel(sensor, arch, deriveSeed(options.seed, 0xA7C4), head);
-    }
-    model.net->train();
-    optimizer = std::make_unique<torch::optim::AdamW>(
-        model.net->parameters(), torch::optim::AdamWOptions(options.learning_rate).weight_decay(options.weight_decay));
-    data_fingerprint = fingerprint(train) ^ splitmix64(fingerprint(validation));
+Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOptions o)
+    : sensor(s), train(std::move(t)), validation(std::move(v)), options(std::move(o)) {
+  options.validate();
+  if (train.size() == 0) throw std::invalid_argument("no training samples");
+  sparse::configureThreads(options.aten_threads, options.blas_threads);
+  if (!options.init_model.empty()) {
+    model = loadModel(options.init_model, &sensor);  // ModelError names the file and the mismatch
+    // Its angle correction fitted that network's bias, which training changes.
+    model.meta.angle_correction = AngleCorrection{};
+    // Validation reads single images, as training does; calibrate-sigma
+    // sets the symmetry again where wanted.
+    model.meta.inference_symmetry = InferenceSymmetry::kNone;
+    if (options.arch.empty()) options.arch = model.meta.arch.name;
+    if (model.meta.arch.name != options.arch)
+      throw std::invalid_argument("training option init_model: " + options.init_model + " is " + model.meta.arch.name +
+                                  ", not " + options.arch);
+    const std::string weighting = centroidWeightingName(model.meta.arch.centroid_weighting);
+    if (options.centroid_weighting.empty()) options.centroid_weighting = weighting;
+    if (options.centroid_weighting != weighting)
+      throw std::invalid_argument("training option init_model: " + options.init_model + " has centroid weighting " +
+                                  weighting + ", not " + options.centroid_weighting);
+    const std::string corrections = model.meta.arch.feature_corrections ? "on" : "off";
+    if (options.feature_corrections.empty()) options.feature_corrections = corrections;
+    if (options.feature_corrections != corrections)
+      throw std::invalid_argument("training option init_model: " + options.init_model + " has feature corrections " +
+                                  corrections + ", not " + options.feature_corrections);
+    const std::string phase = model.meta.arch.lattice_spotwise_phase ? "spotwise" : "whole_spots";
+    if (options.lattice_phase.empty()) options.lattice_phase = phase;
+    if (model.meta.arch.latticeHead() && options.lattice_phase != phase)
+      throw std::invalid_argument("training option init_model: " + options.init_model + " has lattice phase " + phase +
+                                  ", not " + options.lattice_phase);
+  } else {
+    if (options.arch.empty()) options.arch = defaultArchName();
+    if (options.centroid_weighting.empty()) options.centroid_weighting = "learned";
+    ArchSpec arch = archPreset(options.arch, sensor.numSubFovClasses());
+    arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
+    if (options.feature_corrections.empty()) options.feature_corrections = "on";
+    arch.feature_corrections = options.feature_corrections == "on";
+    if (options.lattice_phase.empty()) options.lattice_phase = "spotwise";
+    HeadOptions head;
+    head.lattice_spotwise_phase = options.lattice_phase == "spotwise";
+    model = createModel(sensor, arch, deriveSeed(options.seed, 0xA7C4), head);
   }
+  model.net->train();
+  optimizer = std::make_unique<torch::optim::AdamW>(
+      model.net->parameters(), torch::optim::AdamWOptions(options.learning_rate).weight_decay(options.weight_decay));
+  data_fingerprint = trainingDataFingerprint(train) ^ splitmix64(trainingDataFingerprint(validation));
+}
 
-  std::int64_t imagesPerStep() const {
-    return std::min<std::int64_t>(options.batch_size, static_cast<std::int64_t>(train.size()));
-  }
-
-  std::int64_t stepsPerEpoch() const {
-    return std::max<std::int64_t>(1, static_cast<std::int64_t>(train.size()) / options.batch_size);
-  }
-
-  double learningRate(std::int64_t global_step) const {
-    const double total = static_cast<double>(stepsPerEpoch()) * options.epochs;
-    const double warmup = std::max(1.0, options.warmup_fraction * total);
-    const double s = static_cast<double>(global_step);
-    if (s < warmup) return options.learning_rate * (s + 1) / warmup;
-    const double t = std::min(1.0, (s - warmup) / std::max(1.0, total - warmup));
-    const double floor = options.final_lr_fraction;
-    return options.learning_rate * (floor + (1 - floor) * 0.5 * (1 + std::cos(3.14159265358979323846 * t)));
-  }
-
-  // The epoch's data order: a seeded permutation, so a resumed run sees the same.
-  std::vector<std::size_t> epochOrder(int e) const {
-    std::vector<std::size_t> order(train.size());
-    std::iota(order.begin(), order.end(), 0);
-    Rng rng(deriveSeed(options.seed, 0xE90C0000ULL + static_cast<std::uint64_t>(e)));
-    for (std::size_t i = order.size(); i > 1; --i) std::swap(order[i - 1], order[rng.below(i)]);
-    return order;
-  }
-
-  // One optimizer step on the batch at (epoch, step); returns the loss.
-  double step(const std::vector<std::size_t>& order) {
-    const auto b0 = static_cast<std::size_t>(step_in_epoch * options.batch_size);
-    std::vector<SparseSample> augmented;
-    augmented.reserve(static_cast<std::size_t>(options.batch_size));
-    std::vector<float> targets;
-    std::vector<std::int64_t> classes;
-    // A training set smaller than a batch makes one short batch per epoch.
-    const std::size_t b1 = std::min(order.size(), b0 + static_cast<std::size_t>(options.batch_size));
-    for (std::size_t k = b0; k < b1; ++k) {
-      const SparseSample& s = train.samples()[order[k]];
-      augmented.push_back(augment(s, train.spec(), options.augmentation,
-                                  deriveSeed(options.seed, (static_cast<std::uint64_t>(epoch) << 32) + k)));
-      targets.push_back(static_cast<float>(s.alpha_rad / model.meta.angle_scale_rad));
-      targets.push_back(static_cast<float>(s.beta_rad / model.meta.angle_scale_rad));
-      classes.push_back(std::max(0, s.subfov_class));
-    }
-    std::vector<const SparseSample*> batch;
-    for (const auto& s : augmented) batch.push_back(&s);
-    const auto input = encodeSamples(batch, train.spec());
-    const auto target = torch::tensor(targets).view({-1, 2});
-
-    const double lr = learningRate(epoch * stepsPerEpoch() + step_in_epoch);
-    for (auto& group : optimizer->param_groups()) static_cast<torch::optim::AdamWOptions&>(group.options()).lr(lr);
-    last.learning_rate = lr;
-    optimizer->zero_grad();
-    // The true classes resolve a class-resolved lattice while training, so the
-    // angles learn from the right pitch before the classifier has learned.
-    const auto class_tensor = torch::tensor(classes);
-    const auto out = model.net->forward(input, class_tensor);
-    const double class_weight = sensor.numSubFovClasses() > 1 ? options.class_loss_weight : 0.0;
-    const auto loss = trainingLoss(out, target, class_tensor, model.meta.arch.residual_scale, class_weight);
-    loss.backward();
-    optimizer->step();
-    return loss.item<double>();
-  }
-
-  // Fills the val_* fields of `out` from (at most validation_max) validation samples.
-  void measure(TrainProgress& out) {
-    if (validation.size() == 0) return;
-    model.net->eval();
-    torch::NoGradGuard no_grad;
-    const std::size_t n = std::min(validation.size(), options.validation_max);
-    const double stride = static_cast<double>(validation.size()) / static_cast<double>(n);
-    std::vector<const SparseSample*> picked;
-    for (std::size_t i = 0; i < n; ++i)
-      picked.push_back(&validation.samples()[static_cast<std::size_t>(static_cast<double>(i) * stride)]);
-    const ValidationError v = summarizeValidation(picked, model.predictSamples(picked));
-    model.net->train();
-    out.val_alpha_mean_deg = v.alpha_mean_deg;
-    out.val_beta_mean_deg = v.beta_mean_deg;
-    out.val_alpha_max_deg = v.alpha_max_deg;
-    out.val_beta_max_deg = v.beta_max_deg;
-    out.val_class_accuracy = v.class_accuracy;
-    out.val_gross = static_cast<std::int64_t>(v.gross);
-  }
-
-  void validate() {
-    last.epoch_end = true;
-    if (validation.size() == 0) return;
-    measure(last);
-    const double mean = 0.5 * (last.val_alpha_mean_deg + last.val_beta_mean_deg);
-    if (best_epoch < 0 || mean < best_val_mean_deg) {
-      best_val_mean_deg = mean;
-      best_epoch = last.epoch;
-      best_model_bytes = serializeModel(withMetadata(""));
-    }
-    last.best_val_mean_deg = best_val_mean_deg;
-    last.best_epoch = best_epoch;
-  }
-
-  // `elapsed_s`: training wall time up to now, over every run of this job.
-  std::string stateYaml(double elapsed_s) const {
-    YAML::Emitter e;
-    e << YAML::BeginMap;
-    e << YAML::Key << "sensor" << YAML::Value << sensor.name;
-    e << YAML::Key << "arch" << YAML::Value << options.arch;
-    e << YAML::Key << "centroid_weighting" << YAML::Value << options.centroid_weighting;
-    e << YAML::Key << "feature_corrections" << YAML::Value << options.feature_corrections;
-    e << YAML::Key << "lattice_phase" << YAML::Value << options.lattice_phase;
-    e << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
-    e << YAML::Key << "epochs" << YAML::Value << options.epochs;
-    e << YAML::Key << "seed" << YAML::Value << options.seed;
-    e << YAML::Key << "data_fingerprint" << YAML::Value << data_fingerprint;
-    e << YAML::Key << "epoch" << YAML::Value << epoch;
-    e << YAML::Key << "step_in_epoch" << YAML::Value << step_in_epoch;
-    e << YAML::Key << "elapsed_s" << YAML::Value << elapsed_s;
-    e << YAML::Key << "best_val_mean_deg" << YAML::Value << best_val_mean_deg;
-    e << YAML::Key << "best_epoch" << YAML::Value << best_epoch;
-    e << YAML::EndMap;
-    return e.c_str();
-  }
-
-  std::string optimizerBytes() const {
-    torch::serialize::OutputArchive archive;
-    optimizer->save(archive);
-    std::ostringstream stream;
-    archive.save_to(stream);
-    return stream.str();
-  }
-
-  void saveCheckpoint(const std::string& path, double elapsed_s) const {
-    writeFileAtomic(path,
-                    packContainer(kCheckpointMagic, kCheckpointVersion,
-                                  {stateYaml(elapsed_s), serializeModel(model), best_model_bytes, optimizerBytes()}));
-  }
-
-  void resume(const std::string& path) {
-    std::string bytes;
-    try {
-      bytes = readFile(path);
-    } catch (const std::runtime_error& e) {
-      throw CheckpointError(std::string("checkpoint: ") + e.what());
-    }
-    const std::string origin = "checkpoint '" + path + "'";
-    const auto sections = unpackCheckpoint(bytes, origin);
-    YAML::Node state;
-    try {
-      state = YAML::Load(sections[0]);
-      auto expect = [&](const char* key, const std::string& want) {
-        const std::string have = state[key].as<std::string>();
-        if (have != want)
-          throw CheckpointError(origin + ": made with " + key + " '" + have + "', this run has '" + want + "'");
-      };
-      expect("sensor", sensor.name);
-      expect("arch", options.arch);
-      if (state["centroid_weighting"])  // absent in checkpoints made before it existed
-        expect("centroid_weighting", options.centroid_weighting);
-      if (state["feature_corrections"])  // absent in checkpoints made before it existed
-        expect("feature_corrections", options.feature_corrections);
-      if (state["lattice_phase"])  // absent in checkpoints made before it existed
-        expect("lattice_phase", options.lattice_phase);
-      expect("batch_size", std::to_string(options.batch_size));
-      expect("epochs", std::to_string(options.epochs));
-      expect("seed", std::to_string(options.seed));
-      if (state["data_fingerprint"].as<std::uint64_t>() != data_fingerprint)
-        throw CheckpointError(origin + ": made from different training data (bags, split or image count differ)");
-      epoch = state["epoch"].as<int>();
-      step_in_epoch = state["step_in_epoch"].as<std::int64_t>();
-      elapsed_before_s = state["elapsed_s"].as<double>();
-      best_val_mean_deg = state["best_val_mean_deg"].as<double>();
-      best_epoch = state["best_epoch"].as<int>();
-    } catch (const YAML::Exception& e) {
-      throw CheckpointError(origin + ": unreadable state: " + e.what());
-    }
-    try {
-      Model restored = deserializeModel(sections[1], origin, &sensor);
-      torch::NoGradGuard no_grad;
-      // By name and shape, as a model file is read.
-      copyTensorsByName(restored.net->named_parameters(), model.net->named_parameters(), origin);
-      copyTensorsByName(restored.net->named_buffers(), model.net->named_buffers(), origin);
-      best_model_bytes = sections[2];
-      torch::serialize::InputArchive archive;
-      std::istringstream stream(sections[3]);
-      archive.load_from(stream);
-      optimizer->load(archive);
-    } catch (const ModelError& e) {
-      throw CheckpointError(e.what());
-    } catch (const c10::Error& e) {
-      throw CheckpointError(origin + ": optimizer state unreadable: " + e.what_without_backtrace());
-    }
-    model.net->train();
-  }
-
-  // The current weights with training summary and metrics in the metadata.
-  Model withMetadata(const std::string& data_description) const {
-    Model m = model;
-    YAML::Emitter t;
-    t << YAML::BeginMap;
-    if (!data_description.empty()) t << YAML::Key << "data" << YAML::Value << data_description;
-    t << YAML::Key << "train_samples" << YAML::Value << train.size();
-    t << YAML::Key << "validation_samples" << YAML::Value << validation.size();
-    t << YAML::Key << "epochs_completed" << YAML::Value << last.epoch + (last.epoch_end ? 1 : 0);
-    t << YAML::Key << "epochs_scheduled" << YAML::Value << options.epochs;
-    t << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
-    t << YAML::Key << "optimizer" << YAML::Value << "AdamW, linear warm-up + cosine decay";
-    t << YAML::Key << "learning_rate" << YAML::Value << options.learning_rate;
-    t << YAML::Key << "seed" << YAML::Value << options.seed;
-    if (!options.init_model.empty()) t << YAML::Key << "init_model" << YAML::Value << options.init_model;
-    t << YAML::Key << "wall_s" << YAML::Value << last.elapsed_s;
-    t << YAML::EndMap;
-    m.meta.training_yaml = t.c_str();
-    YAML::Emitter v;
-    v << YAML::BeginMap;
-    v << YAML::Key << "validation_alpha_mean_deg" << YAML::Value << last.val_alpha_mean_deg;
-    v << YAML::Key << "validation_beta_mean_deg" << YAML::Value << last.val_beta_mean_deg;
-    v << YAML::Key << "validation_alpha_max_deg" << YAML::Value << last.val_alpha_max_deg;
-    v << YAML::Key << "validation_beta_max_deg" << YAML::Value << last.val_beta_max_deg;
-    v << YAML::Key << "validation_class_accuracy" << YAML::Value << last.val_class_accuracy;
-    v << YAML::Key << "validation_gross" << YAML::Value << last.val_gross;
-    v << YAML::EndMap;
-    m.meta.metrics_yaml = v.c_str();
-    return m;
-  }
-};
+// The current weights with training summary and metrics in the metadata.
+Model Trainer::Impl::withMetadata(const std::string& data_description) const {
+  Model m = model;
+  YAML::Emitter t;
+  t << YAML::BeginMap;
+  if (!data_description.empty()) t << YAML::Key << "data" << YAML::Value << data_description;
+  t << YAML::Key << "train_samples" << YAML::Value << train.size();
+  t << YAML::Key << "validation_samples" << YAML::Value << validation.size();
+  t << YAML::Key << "epochs_completed" << YAML::Value << last.epoch + (last.epoch_end ? 1 : 0);
+  t << YAML::Key << "epochs_scheduled" << YAML::Value << options.epochs;
+  t << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
+  t << YAML::Key << "optimizer" << YAML::Value << "AdamW, linear warm-up + cosine decay";
+  t << YAML::Key << "learning_rate" << YAML::Value << options.learning_rate;
+  t << YAML::Key << "seed" << YAML::Value << options.seed;
+  if (!options.init_model.empty()) t << YAML::Key << "init_model" << YAML::Value << options.init_model;
+  t << YAML::Key << "wall_s" << YAML::Value << last.elapsed_s;
+  t << YAML::EndMap;
+  m.meta.training_yaml = t.c_str();
+  YAML::Emitter v;
+  v << YAML::BeginMap;
+  v << YAML::Key << "validation_alpha_mean_deg" << YAML::Value << last.val_alpha_mean_deg;
+  v << YAML::Key << "validation_beta_mean_deg" << YAML::Value << last.val_beta_mean_deg;
+  v << YAML::Key << "validation_alpha_max_deg" << YAML::Value << last.val_alpha_max_deg;
+  v << YAML::Key << "validation_beta_max_deg" << YAML::Value << last.val_beta_max_deg;
+  v << YAML::Key << "validation_class_accuracy" << YAML::Value << last.val_class_accuracy;
+  v << YAML::Key << "validation_gross" << YAML::Value << last.val_gross;
+  v << YAML::EndMap;
+  m.meta.metrics_yaml = v.c_str();
+  return m;
+}
 
 Trainer::Trainer(const SensorConfig& sensor, TrainingSet train, TrainingSet validation, TrainOptions options)
     : impl_(std::make_unique<Impl>(sensor, std::move(train), std::move(validation), std::move(options))) {}
