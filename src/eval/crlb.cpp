@@ -5,20 +5,20 @@
 #include <cmath>
 #include <limits>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
 
 double censoredInformationShare(double a) {
   if (!std::isfinite(a)) return a < 0 ? 1.0 : 0.0;
-  const double phi = std::exp(-0.5 * a * a) / std::sqrt(2.0 * 3.14159265358979323846);
+  const double phi = std::exp(-0.5 * a * a) / std::sqrt(2.0 * kPi);
   const double cdf = 0.5 * std::erfc(-a / std::sqrt(2.0));
   return std::max(0.0, 1.0 - cdf + a * phi + (cdf > 1e-300 ? phi * phi / cdf : 0.0));
 }
 
 Eigen::MatrixXd fisherInformation(const cv::Mat& mean, const std::vector<cv::Mat>& derivatives,
-                                  const std::function<double(double)>& variance, double max_mean,
-                                  double censor_below) {
+                                  const std::function<double(double)>& variance, double max_mean, double censor_below) {
   const int n = static_cast<int>(derivatives.size());
   cv::Mat m64;
   mean.convertTo(m64, CV_64F);

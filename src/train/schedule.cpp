@@ -5,6 +5,7 @@
 #include <numeric>
 
 #include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/units.h"
 #include "trainer_impl.h"
 
 namespace dss {
@@ -24,7 +25,7 @@ double Trainer::Impl::learningRate(std::int64_t global_step) const {
   if (s < warmup) return options.learning_rate * (s + 1) / warmup;
   const double t = std::min(1.0, (s - warmup) / std::max(1.0, total - warmup));
   const double floor = options.final_lr_fraction;
-  return options.learning_rate * (floor + (1 - floor) * 0.5 * (1 + std::cos(3.14159265358979323846 * t)));
+  return options.learning_rate * (floor + (1 - floor) * 0.5 * (1 + std::cos(kPi * t)));
 }
 
 // The epoch's data order: a seeded permutation, so a resumed run sees the same.

@@ -1,11 +1,13 @@
 // Sensor configuration: everything the simulator (and later the estimators)
 // needs to know about one digital sun sensor design. Loaded from YAML
-// (config/sensors/*.yaml); see config/sensors/README.md for every key.
+// (config/sensors/*.yaml); docs/simulator.md describes the model behind each key.
 #pragma once
 
 #include <stdexcept>
 #include <string>
 #include <vector>
+
+#include "digital_sun_sensor/common/units.h"
 
 namespace dss {
 
@@ -36,7 +38,7 @@ struct ApertureConfig {
 
   // Open area without occluders.
   double areaUm2() const {
-    return shape == ApertureShape::kCircle ? 0.25 * 3.14159265358979323846 * diameter_um * diameter_um
+    return shape == ApertureShape::kCircle ? 0.25 * kPi * diameter_um * diameter_um
                                            : width_um * height_um;
   }
 };
