@@ -1,5 +1,6 @@
 #include "digital_sun_sensor/common/container.h"
 
+#include <algorithm>
 #include <cstring>
 
 #include "digital_sun_sensor/common/file_io.h"
@@ -48,14 +49,13 @@ Container unpackContainer(const std::string& bytes, const char (&magic)[9], cons
   if (count > bytes.size() || table_end + kChecksumBytes > bytes.size())
     throw ContainerError(origin + ": truncated section table (" + std::to_string(bytes.size()) + " bytes)");
   std::uint64_t expected_size = table_end + kChecksumBytes;
-  for (std::uint64_t i = 0; i < count; ++i) {
-    const auto n = take<std::uint64_t>(bytes, kHeaderBytes + 8 * i);
-    if (n > bytes.size()) expected_size = ~std::uint64_t{0};
-    if (expected_size != ~std::uint64_t{0}) expected_size += n;
-  }
+  // A length beyond the file counts as one byte more than the file: the sum
+  // stays far from overflow and still disagrees with the size.
+  for (std::uint64_t i = 0; i < count; ++i)
+    expected_size += std::min<std::uint64_t>(take<std::uint64_t>(bytes, kHeaderBytes + 8 * i), bytes.size() + 1);
   if (expected_size != bytes.size())
     throw ContainerError(origin + ": truncated or padded: " + std::to_string(bytes.size()) + " bytes, header says " +
-                         (expected_size == ~std::uint64_t{0} ? std::string("more") : std::to_string(expected_size)));
+                         std::to_string(expected_size));
   if (fnv1a64(bytes.data(), bytes.size() - kChecksumBytes) != take<std::uint64_t>(bytes, bytes.size() - kChecksumBytes))
     throw ContainerError(origin + ": checksum mismatch (the file is corrupt)");
   std::size_t at = table_end;

@@ -60,9 +60,10 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
       e.status = status::kNoSun;
     } else if (!impl_->envelope.contains(p.active_sites)) {
       e.valid = false;
-      e.status = std::string(status::kOutOfDistribution) + ": " + std::to_string(p.active_sites) +
-                 " lit pixels (training: " + std::to_string(impl_->envelope.min_sites) + ".." +
-                 std::to_string(impl_->envelope.max_sites) + ")";
+      e.status = status::withDetail(status::kOutOfDistribution,
+                                    std::to_string(p.active_sites) +
+                                        " lit pixels (training: " + std::to_string(impl_->envelope.min_sites) + ".." +
+                                        std::to_string(impl_->envelope.max_sites) + ")");
     } else if (p.code_margin < kMinApertureCodeMargin) {
       e.valid = false;
       std::ostringstream detail;

@@ -39,8 +39,10 @@ std::vector<std::string> fieldLines(const std::string& definition) {
 boost::shared_ptr<digital_sun_sensor::SunAngles> instantiateSunAngles(const rosbag::MessageInstance& m) {
   using digital_sun_sensor::SunAngles;
   if (auto msg = m.instantiate<SunAngles>()) return msg;
+  static const std::vector<std::string> current_fields =
+      fieldLines(ros::message_traits::Definition<SunAngles>::value());
   if (m.getDataType() != ros::message_traits::DataType<SunAngles>::value() ||
-      fieldLines(m.getMessageDefinition()) != fieldLines(ros::message_traits::Definition<SunAngles>::value()))
+      fieldLines(m.getMessageDefinition()) != current_fields)
     return nullptr;
   std::vector<std::uint8_t> bytes(m.size());
   ros::serialization::OStream out(bytes.data(), static_cast<std::uint32_t>(bytes.size()));
