@@ -12,6 +12,7 @@ namespace dss::cli {
 int runGenerate(int argc, char** argv);
 int runBench(int argc, char** argv);
 int runRender(int argc, char** argv);
+int runMask(int argc, char** argv);
 int runCalibrate(int argc, char** argv);
 int runEval(int argc, char** argv);
 int runTrain(int argc, char** argv);

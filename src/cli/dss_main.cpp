@@ -12,6 +12,7 @@ const char* kUsage =
     "commands:\n"
     "  generate   render a dataset (images + ground truth) into a rosbag\n"
     "  render     render one image for a sun direction into a PNG\n"
+    "  mask       draw a seeded irregular mask within a sensor config (a config for tests and experiments)\n"
     "  calibrate  fit the conventional baseline (centroid + calibration model) to a labelled bag\n"
     "  train      train an SSCNN model on labelled bags (checkpoints, --resume)\n"
     "  calibrate-sigma  refit the level of a model's predicted sigma on held-out labelled images\n"
@@ -27,6 +28,7 @@ int main(int argc, char** argv) {
     if (command == "generate") return dss::cli::runGenerate(argc, argv);
     if (command == "bench") return dss::cli::runBench(argc, argv);
     if (command == "render") return dss::cli::runRender(argc, argv);
+    if (command == "mask") return dss::cli::runMask(argc, argv);
     if (command == "calibrate") return dss::cli::runCalibrate(argc, argv);
     if (command == "train") return dss::cli::runTrain(argc, argv);
     if (command == "calibrate-sigma") return dss::cli::runCalibrateSigma(argc, argv);

@@ -1,0 +1,106 @@
+// The general head's model of the sensor and its solve: the quantities the
+// baseline's calibration fits (mask height, offset, rotation, tilt, each
+// aperture's position, the cover glass) as named tensors of the model file,
+// a differentiable ray trace from the sun angles to every aperture's spot,
+// and a weighted Gauss-Newton solve of the angles from the spots the network
+// read, with gradients through both (docs/sscnn.md, "Geometric head").
+#pragma once
+
+#include <torch/nn/module.h>
+#include <torch/nn/pimpl.h>
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace dss {
+
+// A sensor design as the geometry takes it.
+struct GeometryDesign {
+  double height_um = 0.0;                           // detector surface to the mask's exit face
+  std::vector<std::array<double, 2>> apertures_um;  // centres in the mask frame
+  // Apertures whose spots overlap form one group, read as one spot: the
+  // flux-weighted mean of its members' spots (exact for light that adds up).
+  // Empty: every aperture its own group.
+  std::vector<int> groups;
+  std::vector<double> fluxes;       // relative flux per aperture (open area); empty: equal
+  double glass_thickness_um = 0.0;  // cover glass on the detector (0: none)
+  double glass_index = 1.0;
+};
+
+// Double tensors, registered as buffers under these names (prefixed
+// "geometry." in the model file): the nominal design at creation, a unit's
+// own values after a unit calibration.
+class SensorGeometryImpl : public torch::nn::Module {
+ public:
+  SensorGeometryImpl(int apertures, int groups);
+  // The design, with offset, rotation and tilt zero. Throws
+  // std::invalid_argument naming what does not fit the constructor's counts
+  // or is out of range.
+  void setDesign(const GeometryDesign& design);
+  int apertures() const { return static_cast<int>(apertures_um.size(0)); }
+  int groups() const { return static_cast<int>(group_count_); }
+  // Spot centres [B, K, 2] (um from the detector centre, +x along columns)
+  // of every aperture for sun angles [B, 2] (alpha, beta in rad, double);
+  // exact Snell refraction in the glass. Differentiable in the angles and in
+  // every geometry tensor.
+  torch::Tensor spotsUm(const torch::Tensor& angles_rad) const;
+  // The same per group [B, G, 2].
+  torch::Tensor groupSpotsUm(const torch::Tensor& angles_rad) const;
+
+  torch::Tensor height_um;           // [1]
+  torch::Tensor offset_um;           // [2] lateral offset of the mask
+  torch::Tensor rotation_rad;        // [1] about the boresight
+  torch::Tensor tilt_rad;            // [2] about x, then y
+  torch::Tensor apertures_um;        // [K, 2] centres in the mask frame
+  torch::Tensor glass_thickness_um;  // [1]
+  torch::Tensor glass_index;         // [1]
+  torch::Tensor aperture_group;      // [K] (long) the aperture's group
+  torch::Tensor aperture_flux;       // [K] relative flux
+
+ private:
+  std::int64_t group_count_;
+};
+TORCH_MODULE(SensorGeometry);
+
+struct GeometricSolveOptions {
+  // Sites farther than this from every predicted spot are read by none
+  // (stray light, ghosts, hot pixels away from the spots).
+  double gate_um = 100.0;
+  // Detector: pixel pitch and half extents, for the edge rule.
+  double pitch_um = 1.0;
+  int width_px = 1, height_px = 1;
+  // Associations from the reference, then from each solve.
+  int association_rounds = 2;
+  int gauss_newton_iterations = 5;
+};
+
+struct GeometricSolution {
+  // [B, 2] rad (double): Gauss-Newton to convergence without autograd, then
+  // one step in the graph (its Jacobian and normal matrix detached), whose
+  // gradient is the implicit function's at the solution.
+  torch::Tensor angles_rad;
+  // [B, 2] log of the diagonal of (J^T W J)^-1 (rad^2 per unit weight),
+  // detached: how the spots' weights and the geometry constrain each axis.
+  torch::Tensor log_variance;
+  // [B] spots read in the final solve (0: the reference is returned).
+  torch::Tensor spots_read;
+  // [B] RMS distance of the read spots from the geometry's [um].
+  torch::Tensor residual_um;
+};
+
+// Solves each image's sun angles from its sites: positions site_um [N, 2]
+// (double, um from the detector centre), weights [N] (>= 0, differentiable),
+// image index [N]. Each site goes to the aperture whose spot the geometry
+// puts nearest at the current angles (within the gate), and so to its
+// group, starting from
+// reference_rad [B, 2]; a spot is its sites' weighted centroid, weighing in
+// the solve by its summed weight over its weighted spread (the centroid's
+// noise variance goes as spread / sum); a spot with a site on the
+// detector's outermost rows or columns is cut (its centroid pulled inward)
+// and not read while the image has a whole one.
+GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch::Tensor& site_um,
+                                const torch::Tensor& weight, const torch::Tensor& index, std::int64_t batch,
+                                const torch::Tensor& reference_rad, const GeometricSolveOptions& options);
+
+}  // namespace dss

@@ -1,0 +1,138 @@
+#include "digital_sun_sensor/sim/random_mask.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
+
+namespace dss {
+namespace {
+
+double meanWavelengthUm(const OpticsConfig& optics) {
+  double sum = 0.0, weight = 0.0;
+  for (std::size_t i = 0; i < optics.wavelengths_um.size(); ++i) {
+    const double w = i < optics.spectral_weights.size() ? optics.spectral_weights[i] : 1.0;
+    sum += w * optics.wavelengths_um[i];
+    weight += w;
+  }
+  return weight > 0.0 ? sum / weight : 0.55;
+}
+
+double equivalentDiameterUm(const ApertureConfig& a) { return 2.0 * std::sqrt(a.areaUm2() / kPi); }
+
+// Attitudes on which the whole-spot count is checked: a 9 x 9 grid over the
+// field, its corners included.
+std::vector<Eigen::Vector3d> fieldGrid(const FieldOfViewConfig& fov) {
+  constexpr int kNodes = 9;
+  std::vector<Eigen::Vector3d> suns;
+  for (int i = 0; i < kNodes; ++i)
+    for (int j = 0; j < kNodes; ++j)
+      suns.push_back(sunVectorFromAngles(degToRad(fov.alpha_max_deg * (2.0 * i / (kNodes - 1) - 1.0)),
+                                         degToRad(fov.beta_max_deg * (2.0 * j / (kNodes - 1) - 1.0))));
+  return suns;
+}
+
+// Fewest spots wholly on the detector (centre at least a spot radius inside
+// the edge) over the attitudes.
+int fewestWholeSpots(const SensorConfig& config, const std::vector<Eigen::Vector3d>& suns, double spot_radius_um) {
+  const double half_w = 0.5 * config.detector.width_px * config.detector.pitch_um - spot_radius_um;
+  const double half_h = 0.5 * config.detector.height_px * config.detector.pitch_um - spot_radius_um;
+  const GlassSlab glass{config.cover_glass.enabled ? config.cover_glass.thickness_mm * 1000.0 : 0.0,
+                        config.cover_glass.refractive_index};
+  int fewest = std::numeric_limits<int>::max();
+  for (const auto& sun : suns) {
+    int whole = 0;
+    for (const auto& a : config.mask.apertures) {
+      const auto hit = traceToDetector({a.x_um, a.y_um, config.mask.height_mm * 1000.0}, sun, glass);
+      if (hit && std::abs(hit->x()) < half_w && std::abs(hit->y()) < half_h) ++whole;
+    }
+    fewest = std::min(fewest, whole);
+  }
+  return fewest;
+}
+
+}  // namespace
+
+double spotDiameterUm(const SensorConfig& config, double aperture_diameter_um) {
+  const double height_um = config.mask.height_mm * 1000.0;
+  const double diffraction_um = 2.44 * meanWavelengthUm(config.optics) * height_um / aperture_diameter_um;
+  const double disk_um = config.optics.sun.enabled ? height_um * degToRad(config.optics.sun.angular_diameter_deg) : 0.0;
+  return aperture_diameter_um + diffraction_um + disk_um;
+}
+
+RandomMask drawRandomMask(const SensorConfig& base, const RandomMaskOptions& options, std::uint64_t seed,
+                          const std::string& name) {
+  if (options.apertures < 1 || options.apertures > 64)
+    throw std::invalid_argument("random mask: apertures must be 1..64, not " + std::to_string(options.apertures));
+  if (!(options.diameter_spread >= 0.0 && options.diameter_spread < 1.0))
+    throw std::invalid_argument("random mask: diameter_spread must be in [0, 1)");
+  if (options.min_whole_spots < 1 || options.min_whole_spots > options.apertures)
+    throw std::invalid_argument("random mask: min_whole_spots must be 1..apertures (" +
+                                std::to_string(options.apertures) + ")");
+  if (base.mask.apertures.empty() && !(options.diameter_um > 0.0))
+    throw std::invalid_argument("random mask: the base config has no aperture; give a diameter");
+  const double diameter_um =
+      options.diameter_um > 0.0 ? options.diameter_um : equivalentDiameterUm(base.mask.apertures.front());
+  RandomMask out;
+  out.spot_diameter_um = spotDiameterUm(base, diameter_um * (1.0 + options.diameter_spread));
+  const double min_spacing_um = options.min_separation_spots * out.spot_diameter_um;
+  // Spots of apertures beyond the detector's half size plus the field's
+  // largest shift never reach it.
+  const double height_um = base.mask.height_mm * 1000.0;
+  const double reach_x_um =
+      0.5 * base.detector.width_px * base.detector.pitch_um + height_um * std::tan(degToRad(base.fov.alpha_max_deg));
+  const double reach_y_um =
+      0.5 * base.detector.height_px * base.detector.pitch_um + height_um * std::tan(degToRad(base.fov.beta_max_deg));
+  const auto suns = fieldGrid(base.fov);
+  Rng rng(deriveSeed(seed, 0x6d61736bULL));
+  constexpr int kMaxDraws = 20000;
+  for (int draw = 1; draw <= kMaxDraws; ++draw) {
+    SensorConfig config = base;
+    config.mask.apertures.clear();
+    // Positions one at a time, each redrawn (up to 200 times) until it keeps
+    // the spacing; a mask that cannot place one more aperture starts over.
+    for (int k = 0; k < options.apertures; ++k) {
+      bool placed = false;
+      for (int attempt = 0; attempt < 200 && !placed; ++attempt) {
+        const double x = rng.uniform(-reach_x_um, reach_x_um), y = rng.uniform(-reach_y_um, reach_y_um);
+        placed = std::all_of(config.mask.apertures.begin(), config.mask.apertures.end(),
+                             [&](const auto& a) { return std::hypot(a.x_um - x, a.y_um - y) >= min_spacing_um; });
+        if (!placed) continue;
+        ApertureConfig a;
+        a.x_um = std::round(x * 100.0) / 100.0;  // as a config file would give them
+        a.y_um = std::round(y * 100.0) / 100.0;
+        a.shape = ApertureShape::kCircle;
+        a.diameter_um = diameter_um * (1.0 + options.diameter_spread * rng.uniform(-1.0, 1.0));
+        a.diameter_um = std::round(a.diameter_um * 100.0) / 100.0;
+        config.mask.apertures.push_back(a);
+      }
+      if (!placed) break;
+    }
+    if (static_cast<int>(config.mask.apertures.size()) < options.apertures) continue;
+    const int whole = fewestWholeSpots(config, suns, 0.5 * out.spot_diameter_um);
+    if (whole < options.min_whole_spots) continue;
+    config.name = name.empty() ? base.name + "_random_" + std::to_string(seed) : name;
+    config.source_path.clear();
+    out.config = config;
+    out.min_spacing_um = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < config.mask.apertures.size(); ++i)
+      for (std::size_t j = 0; j < i; ++j)
+        out.min_spacing_um =
+            std::min(out.min_spacing_um, std::hypot(config.mask.apertures[i].x_um - config.mask.apertures[j].x_um,
+                                                    config.mask.apertures[i].y_um - config.mask.apertures[j].y_um));
+    out.min_whole_spots = whole;
+    out.draws = draw;
+    return out;
+  }
+  throw std::invalid_argument("random mask: no draw of " + std::to_string(options.apertures) +
+                              " apertures kept spots " + std::to_string(min_spacing_um) + " um apart with " +
+                              std::to_string(options.min_whole_spots) +
+                              " whole spots over the field in 20000 tries (fewer apertures, fewer whole spots, a "
+                              "smaller separation or field)");
+}
+
+}  // namespace dss

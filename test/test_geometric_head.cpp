@@ -1,0 +1,221 @@
+// The geometric head's trace and solve: the trace equals the baseline's
+// calibration model, the solve recovers known angles exactly from noise-free
+// spots (spots leaving the detector, cut by its edge, overlapping, stray
+// sites), and its gradients match finite differences.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+
+#include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/model/geometric_head.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/random_mask.h"
+#include "gradcheck.h"
+
+namespace dss {
+namespace {
+
+// A drawn irregular mask on a non-square detector with a cover glass, and a
+// unit of it with offset, rotation and tilt (the baseline's model of it).
+struct Fixture {
+  SensorConfig config;
+  MaskGeometry unit;
+  SensorGeometry geometry{nullptr};
+};
+
+Fixture makeFixture(int apertures, std::uint64_t seed) {
+  SensorConfig base = loadSensorConfig(
+      DSS_SOURCE_DIR "/config/sensors/thesis_sa.yaml",
+      {"detector.width_px=640", "detector.height_px=512", "detector.pitch_um=2.2", "mask.height_mm=2.5",
+       "fov.alpha_max_deg=8", "fov.beta_max_deg=8", "cover_glass.enabled=true", "cover_glass.thickness_mm=0.4"});
+  RandomMaskOptions options;
+  options.apertures = apertures;
+  Fixture f;
+  f.config = drawRandomMask(base, options, seed).config;
+  f.unit = MaskGeometry::nominalOf(f.config);
+  f.unit.height_um += 13.0;
+  f.unit.offset_x_um = 7.0;
+  f.unit.offset_y_um = -4.0;
+  f.unit.rotation_rad = 0.004;
+  f.unit.tilt_x_rad = 0.002;
+  f.unit.tilt_y_rad = -0.0015;
+  f.geometry = SensorGeometry(apertures, apertures);
+  GeometryDesign design;
+  design.height_um = f.unit.height_um;
+  for (const auto& a : f.unit.apertures_um) design.apertures_um.push_back({a.x(), a.y()});
+  design.glass_thickness_um = f.unit.glass_thickness_um;
+  design.glass_index = f.unit.glass_index;
+  f.geometry->setDesign(design);
+  torch::NoGradGuard no_grad;
+  f.geometry->offset_um[0] = f.unit.offset_x_um;
+  f.geometry->offset_um[1] = f.unit.offset_y_um;
+  f.geometry->rotation_rad[0] = f.unit.rotation_rad;
+  f.geometry->tilt_rad[0] = f.unit.tilt_x_rad;
+  f.geometry->tilt_rad[1] = f.unit.tilt_y_rad;
+  return f;
+}
+
+TEST(GeometricHead, TraceEqualsTheBaselinesCalibrationModel) {
+  const Fixture f = makeFixture(6, 41);
+  Rng rng(3);
+  for (int trial = 0; trial < 20; ++trial) {
+    const double alpha = degToRad(rng.uniform(-8, 8)), beta = degToRad(rng.uniform(-8, 8));
+    const auto spots = f.geometry->spotsUm(torch::tensor({alpha, beta}, torch::kFloat64).view({1, 2}));
+    for (int k = 0; k < f.unit.numApertures(); ++k) {
+      const auto expected = f.unit.spotPx(k, sunVectorFromAngles(alpha, beta));
+      ASSERT_TRUE(expected);
+      EXPECT_NEAR(spots[0][k][0].item<double>(), expected->x() * f.unit.pitch_um, 1e-9);
+      EXPECT_NEAR(spots[0][k][1].item<double>(), expected->y() * f.unit.pitch_um, 1e-9);
+    }
+  }
+}
+
+// Noise-free sites of the spots the detector sees: each spot a pattern
+// symmetric about its centre (so its centroid is the centre), clipped by
+// the detector; a clipped spot gets a site on the outermost column or row.
+struct Sites {
+  std::vector<double> xy_um, weight;
+  std::vector<std::int64_t> index;
+  void add(double x, double y, double w, std::int64_t image) {
+    xy_um.insert(xy_um.end(), {x, y});
+    weight.push_back(w);
+    index.push_back(image);
+  }
+};
+
+void addSpot(Sites& sites, const Eigen::Vector2d& centre_um, double scale, const SensorConfig& config,
+             std::int64_t image) {
+  const double half_x = 0.5 * config.detector.width_px * config.detector.pitch_um;
+  const double half_y = 0.5 * config.detector.height_px * config.detector.pitch_um;
+  bool clipped = false, any = false;
+  for (int i = -4; i <= 4; ++i)
+    for (int j = -4; j <= 4; ++j) {
+      const double dx = 2.1 * i + 0.3 * j, dy = 1.9 * j - 0.2 * i;  // sheared: no grid alignment
+      const double x = centre_um.x() + dx, y = centre_um.y() + dy;
+      if (std::abs(x) > half_x || std::abs(y) > half_y) {
+        clipped = true;
+        continue;
+      }
+      any = true;
+      sites.add(x, y, scale * std::exp(-(dx * dx + dy * dy) / 40.0), image);
+    }
+  if (clipped && any) {
+    const double x = std::clamp(centre_um.x(), -half_x + 0.2, half_x - 0.2);
+    const double y = std::clamp(centre_um.y(), -half_y + 0.2, half_y - 0.2);
+    sites.add(std::abs(centre_um.x()) > half_x - 10 ? std::copysign(half_x - 0.5, x) : x,
+              std::abs(centre_um.x()) > half_x - 10 ? y : std::copysign(half_y - 0.5, y), 0.01, image);
+  }
+}
+
+GeometricSolveOptions optionsFor(const SensorConfig& config) {
+  GeometricSolveOptions o;
+  o.gate_um = 120.0;
+  o.pitch_um = config.detector.pitch_um;
+  o.width_px = config.detector.width_px;
+  o.height_px = config.detector.height_px;
+  return o;
+}
+
+torch::Tensor tensorOf(const std::vector<double>& v) { return torch::tensor(v, torch::kFloat64); }
+
+TEST(GeometricHead, SolveRecoversKnownAnglesExactlyOnAnyMask) {
+  for (const int apertures : {3, 7, 12}) {
+    const Fixture f = makeFixture(apertures, 100 + apertures);
+    Rng rng(apertures);
+    Sites sites;
+    std::vector<double> truth, reference;
+    int cut_spots = 0, images = 0;
+    for (; images < 12; ++images) {
+      const double alpha = degToRad(rng.uniform(-8, 8)), beta = degToRad(rng.uniform(-8, 8));
+      truth.insert(truth.end(), {alpha, beta});
+      // The reference (a coarse estimate) 0.3 deg off.
+      reference.insert(reference.end(), {alpha + degToRad(0.3), beta - degToRad(0.2)});
+      std::vector<Eigen::Vector2d> spots_um;
+      for (int k = 0; k < f.unit.numApertures(); ++k) {
+        const auto px = f.unit.spotPx(k, sunVectorFromAngles(alpha, beta));
+        spots_um.push_back(*px * f.unit.pitch_um);
+        if (!f.unit.insideDetector(*px, 4.5 * 2.2 / f.unit.pitch_um) && f.unit.insideDetector(*px, -9.0)) ++cut_spots;
+        addSpot(sites, spots_um.back(), 1.0 + 0.5 * k, f.config, images);
+      }
+      // A bright stray site beyond the gate of every spot.
+      for (int attempt = 0; attempt < 100; ++attempt) {
+        const Eigen::Vector2d stray(rng.uniform(-700, 700), rng.uniform(-560, 560));
+        if (std::all_of(spots_um.begin(), spots_um.end(), [&](const auto& s) { return (s - stray).norm() > 150; })) {
+          sites.add(stray.x(), stray.y(), 3.0, images);
+          break;
+        }
+      }
+    }
+    const auto solution =
+        solveGeometry(*f.geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight),
+                      torch::tensor(sites.index), images, tensorOf(reference).view({-1, 2}), optionsFor(f.config));
+    const auto error = (solution.angles_rad - tensorOf(truth).view({-1, 2})).abs().max().item<double>();
+    EXPECT_LT(error, 1e-10) << apertures << " apertures";
+    EXPECT_LT(solution.residual_um.max().item<double>(), 1e-6);
+    EXPECT_GE(solution.spots_read.min().item<double>(), 1.0);
+    EXPECT_GT(cut_spots, 0) << "the draw should cut some spots";
+  }
+}
+
+TEST(GeometricHead, OverlappingSpotsReadAsOneGroup) {
+  // Two apertures 30 um apart (their spots merge) and one apart: grouped,
+  // the merged light's centroid is the flux-weighted mean of its members'.
+  SensorGeometry geometry(3, 2);
+  GeometryDesign design;
+  design.height_um = 2500.0;
+  design.apertures_um = {{-100.0, 20.0}, {-70.0, 20.0}, {300.0, -150.0}};
+  design.groups = {0, 0, 1};
+  design.fluxes = {1.0, 2.0, 1.5};
+  geometry->setDesign(design);
+  SensorConfig config;
+  config.detector = {640, 512, 2.2};
+  const double alpha = degToRad(2.5), beta = degToRad(-1.0);
+  const auto spots = geometry->spotsUm(torch::tensor({alpha, beta}, torch::kFloat64).view({1, 2}));
+  Sites sites;
+  for (int k = 0; k < 3; ++k)
+    addSpot(sites, {spots[0][k][0].item<double>(), spots[0][k][1].item<double>()}, design.fluxes[k], config, 0);
+  auto options = optionsFor(config);
+  const auto solution =
+      solveGeometry(*geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight), torch::tensor(sites.index),
+                    1, torch::tensor({alpha - 0.004, beta + 0.003}, torch::kFloat64).view({1, 2}), options);
+  EXPECT_NEAR(solution.angles_rad[0][0].item<double>(), alpha, 1e-10);
+  EXPECT_NEAR(solution.angles_rad[0][1].item<double>(), beta, 1e-10);
+  EXPECT_EQ(solution.spots_read[0].item<double>(), 2.0);
+}
+
+TEST(GeometricHead, GradientsThroughTheSolveMatchFiniteDifferences) {
+  const Fixture f = makeFixture(4, 77);
+  Sites sites;
+  const double alpha = degToRad(1.7), beta = degToRad(-3.2);
+  for (int k = 0; k < f.unit.numApertures(); ++k) {
+    const auto px = f.unit.spotPx(k, sunVectorFromAngles(alpha, beta));
+    addSpot(sites, *px * f.unit.pitch_um + Eigen::Vector2d(0.3 * k, -0.2 * k), 1.0 + k, f.config, 0);
+  }
+  const auto xy = tensorOf(sites.xy_um).view({-1, 2});
+  const auto index = torch::tensor(sites.index);
+  const auto reference = torch::tensor({alpha, beta}, torch::kFloat64).view({1, 2});
+  const auto options = optionsFor(f.config);
+  // Site weights (the network's) and the mask height and aperture positions
+  // (what a unit calibration fits).
+  const auto weights = tensorOf(sites.weight).slice(0, 0, 30);
+  const auto rest = tensorOf(sites.weight).slice(0, 30);
+  test::expectGradientsMatch(
+      [&](const std::vector<torch::Tensor>& in) {
+        auto& geometry = const_cast<SensorGeometryImpl&>(*f.geometry);
+        const auto saved_height = geometry.height_um, saved_apertures = geometry.apertures_um;
+        geometry.height_um = in[1];
+        geometry.apertures_um = in[2];
+        const auto out =
+            solveGeometry(geometry, xy, torch::cat({in[0], rest}), index, 1, reference, options).angles_rad;
+        geometry.height_um = saved_height;
+        geometry.apertures_um = saved_apertures;
+        return out;
+      },
+      {weights, f.geometry->height_um.clone(), f.geometry->apertures_um.clone()}, 1e-6, 1e-6);
+}
+
+}  // namespace
+}  // namespace dss
