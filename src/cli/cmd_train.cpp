@@ -37,7 +37,7 @@ int runTrain(int argc, char** argv) {
           {"centroid-weighting", "W",
            "site weights of the centroid branch: learned (equal at the start), value (the intensity-weighted "
            "centroid at the start) or intensity (the intensity-weighted centroid, nothing learned); default: the "
-           "--init model's, else learned",
+           "--init model's, else value with the geometric head and learned with the others",
            "", false, false},
           {"feature-corrections", "ON_OFF",
            "angle corrections from the pooled backbone features (on), or the angles a smooth function of the spot "
@@ -46,6 +46,11 @@ int runTrain(int argc, char** argv) {
           {"lattice-phase", "RULE",
            "lattice masks: whole spots read spot by spot (spotwise) or their sites pooled (whole_spots, the shipped "
            "thesis_ma); default: the --init model's, else spotwise",
+           "", false, false},
+          {"head", "HEAD",
+           "which head solves the angles: geometric (through the sensor's geometry, any mask), classic (the "
+           "mask-family heads: centroid, lattice, aperture code) or auto (geometric for masks of several apertures "
+           "that are not a full centred lattice); default: the --init model's, else auto",
            "", false, false},
           {"init", "MODEL", "start from this model's weights (fine-tuning; it must suit the sensor)", "", false, false},
           {"resume", "CKPT", "continue from this checkpoint", "", false, false},
@@ -82,6 +87,7 @@ int runTrain(int argc, char** argv) {
   options.centroid_weighting = args.get("centroid-weighting");
   options.feature_corrections = args.get("feature-corrections");
   options.lattice_phase = args.get("lattice-phase");
+  options.head = args.get("head");
   options.epochs = static_cast<int>(args.getInt("epochs"));
   options.batch_size = static_cast<int>(args.getInt("batch"));
   options.learning_rate = args.getDouble("lr");

@@ -21,6 +21,11 @@ CentroidWeighting parseCentroidWeighting(const std::string& name) {
   throw std::invalid_argument("centroid weighting must be 'learned', 'value' or 'intensity', not '" + name + "'");
 }
 
+void validateHeadChoice(const std::string& head) {
+  if (head != "auto" && head != "geometric" && head != "classic")
+    throw std::invalid_argument("head must be 'auto', 'geometric' or 'classic', not '" + head + "'");
+}
+
 void ArchSpec::validate() const {
   auto fail = [&](const std::string& what) { throw std::invalid_argument("architecture '" + name + "': " + what); };
   if (input_channels != 3) fail("input_channels must be 3 (value, x, y)");
@@ -48,6 +53,17 @@ void ArchSpec::validate() const {
   }
   if (geometric_prior_size != 0 && (!centroid_pool || geometric_prior_size < 4 || geometric_prior_size > 1025))
     fail("geometric_prior_size must be 0 or 4..1025, with centroid_pool");
+  if (geometric_head) {
+    if (!centroid_pool) fail("the geometric head needs centroid_pool");
+    if (latticeHead()) fail("the geometric head replaces the lattice head: not both");
+    if (geometric_apertures < 1 || geometric_groups < 1 || geometric_groups > geometric_apertures)
+      fail("the geometric head needs geometric_apertures >= 1 and geometric_groups in 1..geometric_apertures");
+    if (!(geometric_gate_um > 0.0) || !(detector_pitch_um > 0.0) || detector_width_px < 2 || detector_height_px < 2 ||
+        !(angle_scale_rad > 0.0))
+      fail(
+          "the geometric head needs a positive geometric_gate_um, detector_pitch_um, detector size and "
+          "angle_scale_rad");
+  }
   for (int h : head_hidden)
     if (h < 1) fail("head_hidden sizes must be positive");
   if (num_classes < 1) fail("num_classes must be positive");

@@ -48,6 +48,36 @@ SpotReads readSpots(const torch::Tensor& site_um, const torch::Tensor& weight, c
   return r;
 }
 
+// Angles [R, 2] that put group `group` [R]'s spot at target [R, 2] (um):
+// Newton from normal incidence, Jacobians by central differences.
+torch::Tensor invertGroups(const SensorGeometryImpl& geometry, const torch::Tensor& group,
+                           const torch::Tensor& target) {
+  auto spotOf = [&](const torch::Tensor& angles) {  // [R, 2]
+    return geometry.groupSpotsUm(angles).gather(1, group.view({-1, 1, 1}).expand({-1, 1, 2})).squeeze(1);
+  };
+  torch::Tensor angles = torch::zeros_like(target);
+  constexpr double kStep = 1e-6;
+  for (int it = 0; it < 6; ++it) {
+    std::vector<torch::Tensor> columns;
+    for (int axis = 0; axis < 2; ++axis) {
+      auto delta = torch::zeros({1, 2}, kDouble);
+      delta[0][axis] = kStep;
+      columns.push_back((spotOf(angles + delta) - spotOf(angles - delta)) / (2.0 * kStep));
+    }
+    const auto j = torch::stack(columns, 2);  // [R, 2, 2]
+    const auto r = target - spotOf(angles);
+    const auto det = j.select(1, 0).select(1, 0) * j.select(1, 1).select(1, 1) -
+                     j.select(1, 0).select(1, 1) * j.select(1, 1).select(1, 0);
+    const auto safe = torch::where(det.abs() > 1e-12, det, torch::ones_like(det));
+    const auto dx =
+        (j.select(1, 1).select(1, 1) * r.select(1, 0) - j.select(1, 0).select(1, 1) * r.select(1, 1)) / safe;
+    const auto dy =
+        (j.select(1, 0).select(1, 0) * r.select(1, 1) - j.select(1, 1).select(1, 0) * r.select(1, 0)) / safe;
+    angles = (angles + torch::stack({dx, dy}, 1)).clamp(-1.4, 1.4);
+  }
+  return angles;
+}
+
 }  // namespace
 
 SensorGeometryImpl::SensorGeometryImpl(int apertures, int groups) : group_count_(groups) {
@@ -127,94 +157,172 @@ torch::Tensor SensorGeometryImpl::groupSpotsUm(const torch::Tensor& angles_rad) 
          sum.view({1, -1, 1});
 }
 
-GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch::Tensor& site_um,
-                                const torch::Tensor& weight, const torch::Tensor& index, std::int64_t batch,
-                                const torch::Tensor& reference_rad, const GeometricSolveOptions& options) {
-  const std::int64_t groups = geometry.groups();  // spots per image
-  const auto sites = site_um.detach().to(torch::kFloat64);
-  // Cut: a site on the outermost row or column (|px| = half extent - 1/2).
-  const auto limit = torch::tensor(
-      {0.5 * (options.width_px - 2) * options.pitch_um, 0.5 * (options.height_px - 2) * options.pitch_um}, kDouble);
-  const auto on_edge = (sites.abs() > limit).any(1);
-  const double pixel2 = options.pitch_um * options.pitch_um;
+namespace {
+
+// The solve's steps over one set of sites (positions [N, 2] um, image index
+// [N] of `batch` images): association, spot weights, Gauss-Newton.
+class Solver {
+ public:
+  Solver(const SensorGeometryImpl& geometry, torch::Tensor sites, torch::Tensor index, std::int64_t batch,
+         const GeometricSolveOptions& options)
+      : geometry_(geometry),
+        sites_(std::move(sites)),
+        index_(std::move(index)),
+        batch_(batch),
+        groups_(geometry.groups()),
+        options_(options) {
+    // Cut: a site on the outermost row or column (|px| > half extent - 1).
+    const auto limit = torch::tensor(
+        {0.5 * (options.width_px - 2) * options.pitch_um, 0.5 * (options.height_px - 2) * options.pitch_um}, kDouble);
+    on_edge_ = (sites_.abs() > limit).any(1);
+  }
 
   // Each site's spot (image * G + the group of the aperture whose spot is
-  // nearest) at the given angles, and whether it lies within the gate.
-  auto associate = [&](const torch::Tensor& angles) {
-    const auto predicted = geometry.spotsUm(angles).index_select(0, index);  // [N, K, 2]
-    const auto distance2 = (sites.unsqueeze(1) - predicted).pow(2).sum(2);   // [N, K]
+  // nearest at `angles`) and its squared distance from that aperture's spot.
+  std::pair<torch::Tensor, torch::Tensor> associate(const torch::Tensor& angles) const {
+    const auto predicted = geometry_.spotsUm(angles).index_select(0, index_);  // [N, K, 2]
+    const auto distance2 = (sites_.unsqueeze(1) - predicted).pow(2).sum(2);    // [N, K]
     const auto [nearest2, aperture] = distance2.min(1);
-    return std::make_pair(index * groups + geometry.aperture_group.index_select(0, aperture),
-                          nearest2 < options.gate_um * options.gate_um);
-  };
-  // Weight of each spot in the solve [B, K]: sum / spread, whole spots only
+    return {index_ * groups_ + geometry_.aperture_group.index_select(0, aperture), nearest2};
+  }
+  torch::Tensor inGate(const torch::Tensor& distance2) const { return distance2 < options_.gate_um * options_.gate_um; }
+  SpotReads read(const torch::Tensor& w, const torch::Tensor& spot, const torch::Tensor& inside) const {
+    return readSpots(sites_, w * inside.to(torch::kFloat64), on_edge_ & inside, spot, batch_ * groups_);
+  }
+  // Weight of each spot in the solve [B, G]: sum / spread, whole spots only
   // where the image has one.
-  auto solveWeights = [&](const SpotReads& r) {
-    const auto spread = r.spread.clamp_min(pixel2 / 6.0);
-    const auto all = torch::where(r.sum > 0, r.sum / spread, torch::zeros_like(r.sum)).view({batch, groups});
-    const auto whole = all * (~r.cut).to(torch::kFloat64).view({batch, groups});
-    const auto has_whole = (whole.sum(1, true) > 0);
-    return torch::where(has_whole, whole, all);
-  };
-  auto jacobian = [&](const torch::Tensor& angles) {  // d(spot um)/d(angle) [B, K, 2, 2]
+  torch::Tensor solveWeights(const SpotReads& r) const {
+    const auto spread = r.spread.clamp_min(options_.pitch_um * options_.pitch_um / 6.0);
+    const auto all = torch::where(r.sum > 0, r.sum / spread, torch::zeros_like(r.sum)).view({batch_, groups_});
+    const auto whole = all * (~r.cut).to(torch::kFloat64).view({batch_, groups_});
+    return torch::where(whole.sum(1, true) > 0, whole, all);
+  }
+  torch::Tensor jacobian(const torch::Tensor& angles) const {  // d(spot um)/d(angle) [B, G, 2, 2]
     constexpr double kStep = 1e-6;
     std::vector<torch::Tensor> columns;
     for (int axis = 0; axis < 2; ++axis) {
       auto delta = torch::zeros({1, 2}, kDouble);
       delta[0][axis] = kStep;
-      columns.push_back((geometry.groupSpotsUm(angles + delta) - geometry.groupSpotsUm(angles - delta)) /
+      columns.push_back((geometry_.groupSpotsUm(angles + delta) - geometry_.groupSpotsUm(angles - delta)) /
                         (2.0 * kStep));
     }
     return torch::stack(columns, 3);
-  };
-  // Normal matrix A = sum_k W_k J_k^T J_k [B, 2, 2] and its inverse (zero
+  }
+  // Inverse of the normal matrix A = sum_k W_k J_k^T J_k [B, 2, 2] (zero
   // where the image reads no spot).
-  auto normalInverse = [&](const torch::Tensor& jac, const torch::Tensor& w) {
-    const auto a = (w.view({batch, groups, 1, 1}) * jac.transpose(2, 3).matmul(jac)).sum(1);
+  torch::Tensor normalInverse(const torch::Tensor& jac, const torch::Tensor& w) const {
+    const auto a = (w.view({batch_, groups_, 1, 1}) * jac.transpose(2, 3).matmul(jac)).sum(1);
     const auto a00 = a.select(1, 0).select(1, 0), a01 = a.select(1, 0).select(1, 1);
     const auto a10 = a.select(1, 1).select(1, 0), a11 = a.select(1, 1).select(1, 1);
     const auto det = a00 * a11 - a01 * a10;
-    const auto ok = det > 1e-300;
-    const auto inv_det = torch::where(ok, 1.0 / det.clamp_min(1e-300), torch::zeros_like(det));
+    const auto inv_det = torch::where(det > 1e-300, 1.0 / det.clamp_min(1e-300), torch::zeros_like(det));
     return torch::stack({torch::stack({a11, -a01}, 1), torch::stack({-a10, a00}, 1)}, 1) * inv_det.view({-1, 1, 1});
-  };
-  // J^T W r per image [B, 2] for spots [B, K, 2] about predicted [B, K, 2].
-  auto gradient = [&](const torch::Tensor& jac, const torch::Tensor& w, const torch::Tensor& spots,
-                      const torch::Tensor& predicted) {
-    const auto r = (spots - predicted).unsqueeze(3);  // [B, K, 2, 1]
-    return (w.view({batch, groups, 1, 1}) * jac.transpose(2, 3).matmul(r)).sum(1).squeeze(2);
-  };
-
-  torch::Tensor angles = reference_rad.detach().to(torch::kFloat64);
-  {
-    torch::NoGradGuard no_grad;
-    const auto w = weight.detach().to(torch::kFloat64);
-    for (int round = 0; round < options.association_rounds; ++round) {
-      const auto [spot, inside] = associate(angles);
-      const SpotReads r = readSpots(sites, w * inside.to(torch::kFloat64), on_edge & inside, spot, batch * groups);
+  }
+  // J^T W r per image [B, 2] for spots [B, G, 2] about predicted [B, G, 2].
+  torch::Tensor gradient(const torch::Tensor& jac, const torch::Tensor& w, const torch::Tensor& spots,
+                         const torch::Tensor& predicted) const {
+    const auto r = (spots - predicted).unsqueeze(3);
+    return (w.view({batch_, groups_, 1, 1}) * jac.transpose(2, 3).matmul(r)).sum(1).squeeze(2);
+  }
+  // Rounds of association and Gauss-Newton from `angles` (no autograd).
+  torch::Tensor refine(torch::Tensor angles, const torch::Tensor& w) const {
+    for (int round = 0; round < options_.association_rounds; ++round) {
+      const auto [spot, distance2] = associate(angles);
+      const SpotReads r = read(w, spot, inGate(distance2));
       const auto solve_w = solveWeights(r);
-      const auto spots = r.centroid.view({batch, groups, 2});
-      for (int it = 0; it < options.gauss_newton_iterations; ++it) {
+      const auto spots = r.centroid.view({batch_, groups_, 2});
+      for (int it = 0; it < options_.gauss_newton_iterations; ++it) {
         const auto jac = jacobian(angles);
         const auto step = normalInverse(jac, solve_w)
-                              .matmul(gradient(jac, solve_w, spots, geometry.groupSpotsUm(angles)).unsqueeze(2))
+                              .matmul(gradient(jac, solve_w, spots, geometry_.groupSpotsUm(angles)).unsqueeze(2))
                               .squeeze(2);
         // Angles stay inside the hemisphere whatever a wild step says.
         angles = (angles + step).clamp(-1.4, 1.4);
       }
     }
+    return angles;
+  }
+  // How well spots at `angles` [B, 2] account for the light w [N] (no
+  // autograd): the fraction of each image's light within half a gate of a
+  // spot, less the fraction of the spots the detector should show (centre
+  // a quarter gate inside its edges) that hold under 2 % of the light.
+  torch::Tensor score(const torch::Tensor& angles, const torch::Tensor& w) const {
+    const auto [spot, distance2] = associate(angles);
+    const auto near = (distance2 < 0.25 * options_.gate_um * options_.gate_um).to(torch::kFloat64);
+    const auto total = torch::zeros({batch_}, kDouble).index_add(0, index_, w).clamp_min(1e-30);
+    const auto explained = torch::zeros({batch_}, kDouble).index_add(0, index_, w * near) / total;
+    const auto light = torch::zeros({batch_ * groups_}, kDouble).index_add(0, spot, w * near).view({batch_, groups_});
+    const auto limit = torch::tensor({0.5 * options_.width_px * options_.pitch_um - 0.25 * options_.gate_um,
+                                      0.5 * options_.height_px * options_.pitch_um - 0.25 * options_.gate_um},
+                                     kDouble);
+    const auto expected = (geometry_.groupSpotsUm(angles).abs() < limit).all(2).to(torch::kFloat64);
+    const auto dark = expected * (light < 0.02 * total.view({-1, 1})).to(torch::kFloat64);
+    return explained - dark.sum(1) / expected.sum(1).clamp_min(1.0);
+  }
+  std::int64_t batch() const { return batch_; }
+  std::int64_t groups() const { return groups_; }
+
+ private:
+  const SensorGeometryImpl& geometry_;
+  torch::Tensor sites_, index_, on_edge_;
+  std::int64_t batch_, groups_;
+  GeometricSolveOptions options_;
+};
+
+// The best of the reference and, per group, the angles that put its spot on
+// the image's heaviest site, each refined and then scored (Solver::score).
+torch::Tensor searchReference(const SensorGeometryImpl& geometry, const torch::Tensor& sites, const torch::Tensor& w,
+                              const torch::Tensor& index, std::int64_t batch, const torch::Tensor& reference,
+                              const GeometricSolveOptions& options) {
+  const std::int64_t groups = geometry.groups(), hypotheses = groups + 1;
+  // The anchor: each image's heaviest site (the first of equals; an image
+  // without sites gets the origin and keeps its reference).
+  const std::int64_t n = sites.size(0);
+  const auto heaviest = torch::zeros({batch}, kDouble).scatter_reduce(0, index, w, "amax", false);
+  const auto row = torch::where(w == heaviest.index_select(0, index), torch::arange(n, torch::kLong),
+                                torch::full({n}, n, torch::kLong));
+  const auto first = torch::full({batch}, n, torch::kLong).scatter_reduce(0, index, row, "amin", true);
+  const auto anchor = torch::cat({sites, torch::zeros({1, 2}, kDouble)}).index_select(0, first);
+  const auto group = torch::arange(groups, torch::kLong).repeat({batch});
+  const auto placed = invertGroups(geometry, group, anchor.repeat_interleave(groups, 0)).view({batch, groups, 2});
+  const auto candidates = torch::cat({reference.unsqueeze(1), placed}, 1).view({-1, 2});  // [B * H, 2]
+  // Every site once per hypothesis: image b's hypothesis h is row b * H + h.
+  const auto hypothesis = torch::arange(hypotheses, torch::kLong);
+  const Solver expanded(geometry, sites.repeat_interleave(hypotheses, 0),
+                        (index.view({-1, 1}) * hypotheses + hypothesis.view({1, -1})).view({-1}), batch * hypotheses,
+                        options);
+  const auto w_expanded = w.repeat_interleave(hypotheses, 0);
+  const auto refined = expanded.refine(candidates, w_expanded);
+  const auto best = expanded.score(refined, w_expanded).view({batch, hypotheses}).argmax(1);  // first of equals
+  return refined.view({batch, hypotheses, 2}).gather(1, best.view({-1, 1, 1}).expand({-1, 1, 2})).squeeze(1);
+}
+
+}  // namespace
+
+GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch::Tensor& site_um,
+                                const torch::Tensor& weight, const torch::Tensor& index, std::int64_t batch,
+                                const torch::Tensor& reference_rad, const GeometricSolveOptions& options) {
+  const auto sites = site_um.detach().to(torch::kFloat64);
+  const Solver solver(geometry, sites, index, batch, options);
+  const std::int64_t groups = geometry.groups();
+  torch::Tensor angles = reference_rad.detach().to(torch::kFloat64);
+  {
+    torch::NoGradGuard no_grad;
+    const auto w = weight.detach().to(torch::kFloat64);
+    if (options.search_reference && sites.size(0) > 0)
+      angles = searchReference(geometry, sites, w, index, batch, angles, options);
+    angles = solver.refine(angles, w);
   }
   // The last association and step in the graph.
-  const auto [spot, inside] = associate(angles);
-  const auto w = weight.to(torch::kFloat64) * inside.to(torch::kFloat64);
-  const SpotReads r = readSpots(sites, w, on_edge & inside, spot, batch * groups);
-  const auto solve_w = solveWeights(r);
+  const auto [spot, distance2] = solver.associate(angles);
+  const SpotReads r = solver.read(weight.to(torch::kFloat64), spot, solver.inGate(distance2));
+  const auto solve_w = solver.solveWeights(r);
   const auto spots = r.centroid.view({batch, groups, 2});
-  const auto jac = jacobian(angles).detach();
-  const auto inverse = normalInverse(jac, solve_w.detach()).detach();
+  const auto jac = solver.jacobian(angles).detach();
+  const auto inverse = solver.normalInverse(jac, solve_w.detach()).detach();
   const auto predicted = geometry.groupSpotsUm(angles);
   GeometricSolution out;
-  out.angles_rad = angles + inverse.matmul(gradient(jac, solve_w, spots, predicted).unsqueeze(2)).squeeze(2);
+  out.angles_rad = angles + inverse.matmul(solver.gradient(jac, solve_w, spots, predicted).unsqueeze(2)).squeeze(2);
   torch::NoGradGuard no_grad;
   out.log_variance = torch::log(
       torch::stack({inverse.select(1, 0).select(1, 0), inverse.select(1, 1).select(1, 1)}, 1).clamp_min(1e-300));

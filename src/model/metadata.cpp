@@ -9,6 +9,7 @@
 
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/common/yaml_reader.h"
+#include "digital_sun_sensor/model/geometry_design.h"
 
 namespace dss {
 namespace {
@@ -116,6 +117,25 @@ void setLattice(const SensorConfig& config, const HeadOptions& head, ArchSpec& a
                                (0.5 * std::min(config.detector.width_px, config.detector.height_px));
 }
 
+// The geometric head in place of the mask-family heads (HeadOptions::head).
+void setGeometric(const SensorConfig& config, const HeadOptions& head, ArchSpec& arch) {
+  validateHeadChoice(head.head);
+  const bool family_head = arch.latticeHead() || config.mask.apertures.size() < 2;
+  if (head.head == "classic" || (head.head == "auto" && family_head)) return;
+  arch.lattice_pitch_x = arch.lattice_pitch_y = 0.0;
+  arch.lattice_columns = arch.lattice_rows = 1;
+  arch.lattice_whole_spot_phase = arch.lattice_spotwise_phase = false;
+  arch.lattice_pixel_x = arch.lattice_pixel_y = 0.0;
+  const GeometryDesign design = geometryDesignOf(config);
+  arch.geometric_head = true;
+  arch.geometric_apertures = static_cast<int>(design.apertures_um.size());
+  arch.geometric_groups = design.groupCount();
+  arch.geometric_gate_um = geometricGateUm(config, design);
+  arch.detector_pitch_um = config.detector.pitch_um;
+  arch.detector_width_px = config.detector.width_px;
+  arch.detector_height_px = config.detector.height_px;
+}
+
 }  // namespace
 
 ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch, const HeadOptions& head) {
@@ -130,7 +150,9 @@ ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch, cons
     constexpr int kTableSize = 257;
     m.arch.geometric_prior_size =
         std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg) > kWideFieldDeg ? kTableSize : 0;
+    setGeometric(config, head, m.arch);
   }
+  m.arch.angle_scale_rad = degToRad(std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg));
   m.arch.validate();
   m.input = inputSpecFor(config);
   m.angle_scale_rad = degToRad(std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg));
@@ -178,6 +200,15 @@ std::string metadataToYaml(const ModelMetadata& m) {
   }
   if (m.arch.geometric_prior_size > 0)
     e << YAML::Key << "geometric_prior_size" << YAML::Value << m.arch.geometric_prior_size;
+  if (m.arch.geometric_head) {
+    e << YAML::Key << "geometric_head" << YAML::Value << true;
+    e << YAML::Key << "geometric_apertures" << YAML::Value << m.arch.geometric_apertures;
+    e << YAML::Key << "geometric_groups" << YAML::Value << m.arch.geometric_groups;
+    e << YAML::Key << "geometric_gate_um" << YAML::Value << m.arch.geometric_gate_um;
+    e << YAML::Key << "detector_pitch_um" << YAML::Value << m.arch.detector_pitch_um;
+    e << YAML::Key << "detector_width_px" << YAML::Value << m.arch.detector_width_px;
+    e << YAML::Key << "detector_height_px" << YAML::Value << m.arch.detector_height_px;
+  }
   e << YAML::Key << "head_hidden" << YAML::Value << YAML::Flow << m.arch.head_hidden;
   e << YAML::Key << "num_classes" << YAML::Value << m.arch.num_classes;
   e << YAML::EndMap;
@@ -274,8 +305,18 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   }
   if (a["geometric_prior_size"])  // absent: the linear prior
     m.arch.geometric_prior_size = get<int>(a, "geometric_prior_size", origin, "arch.");
+  if (a["geometric_head"]) {  // absent: the mask-family heads
+    m.arch.geometric_head = get<bool>(a, "geometric_head", origin, "arch.");
+    m.arch.geometric_apertures = get<int>(a, "geometric_apertures", origin, "arch.");
+    m.arch.geometric_groups = get<int>(a, "geometric_groups", origin, "arch.");
+    m.arch.geometric_gate_um = get<double>(a, "geometric_gate_um", origin, "arch.");
+    m.arch.detector_pitch_um = get<double>(a, "detector_pitch_um", origin, "arch.");
+    m.arch.detector_width_px = get<int>(a, "detector_width_px", origin, "arch.");
+    m.arch.detector_height_px = get<int>(a, "detector_height_px", origin, "arch.");
+  }
   m.arch.head_hidden = get<std::vector<int>>(a, "head_hidden", origin, "arch.");
   m.arch.num_classes = get<int>(a, "num_classes", origin, "arch.");
+  m.arch.angle_scale_rad = get<double>(root, "angle_scale_rad", origin, "");
   try {
     m.arch.validate();
   } catch (const std::invalid_argument& e) {

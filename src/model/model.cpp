@@ -1,6 +1,7 @@
 // A fresh model for a sensor: metadata, network and its physics priors.
 #include "digital_sun_sensor/model/model.h"
 
+#include "digital_sun_sensor/model/geometry_design.h"
 #include "digital_sun_sensor/model/physics_prior.h"
 
 namespace dss {
@@ -20,6 +21,7 @@ Model createModel(const SensorConfig& config, const ArchSpec& arch, std::uint64_
     const GeometricPrior prior = geometricPrior(config, m.meta.arch.geometric_prior_size, m.meta.angle_scale_rad);
     m.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
   }
+  if (m.meta.arch.geometric_head) m.net->initGeometry(geometryDesignOf(config));
   if (m.meta.arch.apertureClassLattice()) {
     // Classes are the apertures (SubFovType::kNearestAperture), in config order.
     std::vector<std::array<double, 2>> offsets;

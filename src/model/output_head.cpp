@@ -69,6 +69,39 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
   return result;
 }
 
+void SscnnNetImpl::solveAngles(SscnnOutput& out, const torch::Tensor& w, const torch::Tensor& xy,
+                               const torch::Tensor& index, std::int64_t batch, const torch::Tensor& known_angles) {
+  const double scale = arch_.angle_scale_rad;
+  out.coarse_angles = out.angles;
+  const torch::Tensor reference = (known_angles.defined() ? known_angles : out.angles).detach().to(torch::kFloat64);
+  const double half_width_um = 0.5 * arch_.detector_width_px * arch_.detector_pitch_um;
+  const double half_height_um = 0.5 * arch_.detector_height_px * arch_.detector_pitch_um;
+  const torch::Tensor site_um =
+      xy.to(torch::kFloat64) * torch::tensor({half_width_um, half_height_um}, torch::kFloat64).view({1, 2});
+  GeometricSolveOptions options;
+  options.gate_um = arch_.geometric_gate_um;
+  options.pitch_um = arch_.detector_pitch_um;
+  options.width_px = arch_.detector_width_px;
+  options.height_px = arch_.detector_height_px;
+  options.search_reference = !known_angles.defined();
+  const GeometricSolution solution =
+      solveGeometry(*geometry_, site_um, w.reshape({-1}), index, batch, reference * scale, options);
+  // The geometry's angles plus a smooth learned correction (what the
+  // nominal geometry leaves: diffraction and vignetting shifts, a mask
+  // thickness), in the network's precision.
+  const torch::Tensor solved = (solution.angles_rad / scale).to(out.angles.scalar_type());
+  const torch::Tensor corrected =
+      solved + arch_.residual_scale * geometric_correction_->forward(monomials(solved.detach()));
+  const torch::Tensor read = (solution.spots_read > 0).view({-1, 1});
+  out.angles = torch::where(read, corrected, out.coarse_angles);
+  // The solve's variance per unit weight, normalized; the variance head's
+  // output scales it (and has it alone where no spot was read).
+  const torch::Tensor solve_log_variance = (solution.log_variance - 2.0 * std::log(scale)).to(out.angles.scalar_type());
+  out.log_variance = out.log_variance + torch::where(read, solve_log_variance, torch::zeros_like(solve_log_variance));
+  out.spots_read = solution.spots_read;
+  out.solve_residual_um = solution.residual_um;
+}
+
 void SscnnNetImpl::shiftLogVariance(double alpha, double beta) {
   torch::NoGradGuard no_grad;
   variance_->bias[0] += alpha;

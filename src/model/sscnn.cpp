@@ -64,11 +64,20 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
         register_buffer("geometric_prior", torch::zeros({1, 2, arch.geometric_prior_size, arch.geometric_prior_size}));
     geometric_prior_extent_ = register_buffer("geometric_prior_extent", torch::ones({2}));
   }
+  if (arch.geometric_head) {
+    geometry_ = register_module("geometry", SensorGeometry(arch.geometric_apertures, arch.geometric_groups));
+    const int monomials = (arch.centroid_degree + 1) * (arch.centroid_degree + 2) / 2 - 1;
+    geometric_correction_ = register_module("geometric_correction", torch::nn::Linear(monomials, 2));
+  }
   const int head_in = 2 * channels + (arch.centroid_pool ? 2 : 0) + (class_resolved ? 4 : 0);
   const int class_hidden = arch.head_hidden.back();
   class_hidden_ = register_module("class_hidden", torch::nn::Linear(head_in, class_hidden));
   class_output_ = register_module("class_output", torch::nn::Linear(class_hidden, arch.num_classes));
   torch::NoGradGuard no_grad;
+  if (geometric_correction_) {  // the geometry's angles as they are, at the start
+    geometric_correction_->weight.zero_();
+    geometric_correction_->bias.zero_();
+  }
   output_->weight.zero_();  // start with angle corrections of zero...
   output_->bias.zero_();
   variance_->weight.mul_(0.1);  // ...and unit variance
@@ -123,6 +132,10 @@ void SscnnNetImpl::initGeometricPrior(const torch::Tensor& table, double extent_
   geometric_prior_extent_[1] = extent_y;
 }
 
+void SscnnNetImpl::initGeometry(const GeometryDesign& design) {
+  if (geometry_) geometry_->setDesign(design);
+}
+
 torch::Tensor SscnnNetImpl::priorAngles(const torch::Tensor& position) const {
   if (!geometric_prior_.defined()) return position * centroid_prior_;
   // Catmull-Rom over the 4 x 4 nearest nodes: exact for quadratics, unlike
@@ -154,7 +167,8 @@ std::int64_t SscnnNetImpl::parameterCount() const {
   return n;
 }
 
-SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor& known_classes) {
+SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor& known_classes,
+                                  const torch::Tensor& known_angles) {
   SparseTensor x = stem_->forward(input);
   x = x.with(torch::relu(x.features));
   if (arch_.stem_max_pool) {
@@ -176,9 +190,15 @@ SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor
       logits = centroid_conv2_->forward(c.with(torch::relu(c.features))).features;
     }
     // Every site of the sparse input is lit.
-    spots = readSpots(centroidWeights(logits, value), input.features.slice(1, 1, 3),
-                      torch::ones({input.features.size(0)}, input.features.options()), sparse::batchIndex(*input.sites),
+    const torch::Tensor w = centroidWeights(logits, value), xy = input.features.slice(1, 1, 3);
+    const torch::Tensor index = sparse::batchIndex(*input.sites);
+    spots = readSpots(w, xy, torch::ones({input.features.size(0)}, input.features.options()), index,
                       input.sites->batchSize());
+    if (arch_.geometric_head) {
+      SscnnOutput out = head(pooled, spots, known_classes);
+      solveAngles(out, w, xy, index, input.sites->batchSize(), known_angles);
+      return out;
+    }
   }
   return head(pooled, spots, known_classes);
 }
@@ -201,8 +221,14 @@ SscnnOutput SscnnNetImpl::forwardDense(const torch::Tensor& input) {
     // Every pixel as a site (inactive ones weigh 0), in the sparse branch's layout.
     const auto batch = input.size(0), pixels = input.size(2) * input.size(3);
     const auto index = torch::arange(batch, torch::TensorOptions().dtype(torch::kLong)).repeat_interleave(pixels);
-    spots = readSpots(w.permute({0, 2, 3, 1}).reshape({-1, 1}),
-                      input.slice(1, 1, 3).permute({0, 2, 3, 1}).reshape({-1, 2}), active.reshape({-1}), index, batch);
+    const auto site_w = w.permute({0, 2, 3, 1}).reshape({-1, 1});
+    const auto xy = input.slice(1, 1, 3).permute({0, 2, 3, 1}).reshape({-1, 2});
+    spots = readSpots(site_w, xy, active.reshape({-1}), index, batch);
+    if (arch_.geometric_head) {
+      SscnnOutput out = head(pooled, spots, {});
+      solveAngles(out, site_w, xy, index, batch, {});
+      return out;
+    }
   }
   return head(pooled, spots, {});
 }

@@ -74,6 +74,7 @@ std::string Trainer::Impl::stateYaml(double elapsed_s) const {
   e << YAML::Key << "centroid_weighting" << YAML::Value << options.centroid_weighting;
   e << YAML::Key << "feature_corrections" << YAML::Value << options.feature_corrections;
   e << YAML::Key << "lattice_phase" << YAML::Value << options.lattice_phase;
+  e << YAML::Key << "head" << YAML::Value << options.head;
   e << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
   e << YAML::Key << "epochs" << YAML::Value << options.epochs;
   e << YAML::Key << "seed" << YAML::Value << options.seed;
@@ -126,6 +127,8 @@ void Trainer::Impl::resume(const std::string& path) {
       expect("feature_corrections", options.feature_corrections);
     if (state["lattice_phase"])  // absent in checkpoints made before it existed
       expect("lattice_phase", options.lattice_phase);
+    if (state["head"])  // absent in checkpoints made before it existed
+      expect("head", options.head);
     expect("batch_size", std::to_string(options.batch_size));
     expect("epochs", std::to_string(options.epochs));
     expect("seed", std::to_string(options.seed));

@@ -25,6 +25,11 @@ torch::Tensor trainingLoss(const SscnnOutput& out, const torch::Tensor& target, 
       ((0.5 * error.detach().pow(2) * torch::exp(-out.log_variance) + 0.5 * out.log_variance) * keep).sum() /
       kept_terms;
   auto loss = mse + nll;
+  // The geometric head's coarse angles only associate the sites with the
+  // apertures, but must be right to half the spots' spacing for that: their
+  // own squared error, on the scale of the angles'.
+  if (out.coarse_angles.defined())
+    loss = loss + (out.coarse_angles - target).pow(2).mean() / (residual_scale * residual_scale);
   if (class_weight > 0) loss = loss + class_weight * torch::cross_entropy_loss(out.class_logits, classes);
   return loss;
 }

@@ -90,6 +90,8 @@ void TrainOptions::validate() const {
           "feature_corrections must be 'on' or 'off', not '" + feature_corrections + "'");
   require(lattice_phase.empty() || lattice_phase == "spotwise" || lattice_phase == "whole_spots",
           "lattice_phase must be 'spotwise' or 'whole_spots', not '" + lattice_phase + "'");
+  require(head.empty() || head == "auto" || head == "geometric" || head == "classic",
+          "head must be 'auto', 'geometric' or 'classic', not '" + head + "'");
   const auto& a = augmentation;
   for (double p : {a.gain_probability, a.noise_probability, a.threshold_probability, a.dropout_probability})
     require(p >= 0 && p <= 1, "augmentation probabilities must be in [0, 1]");
@@ -130,16 +132,27 @@ Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOp
     if (model.meta.arch.latticeHead() && options.lattice_phase != phase)
       throw std::invalid_argument("training option init_model: " + options.init_model + " has lattice phase " + phase +
                                   ", not " + options.lattice_phase);
+    const std::string head = model.meta.arch.geometric_head ? "geometric" : "classic";
+    if (options.head.empty() || options.head == "auto") options.head = head;
+    if (options.head != head)
+      throw std::invalid_argument("training option init_model: " + options.init_model + " has the " + head +
+                                  " head, not the " + options.head);
   } else {
     if (options.arch.empty()) options.arch = defaultArchName();
-    if (options.centroid_weighting.empty()) options.centroid_weighting = "learned";
     ArchSpec arch = archPreset(options.arch, sensor.numSubFovClasses());
-    arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
     if (options.feature_corrections.empty()) options.feature_corrections = "on";
     arch.feature_corrections = options.feature_corrections == "on";
     if (options.lattice_phase.empty()) options.lattice_phase = "spotwise";
     HeadOptions head;
     head.lattice_spotwise_phase = options.lattice_phase == "spotwise";
+    if (options.head.empty()) options.head = "auto";
+    head.head = options.head;
+    // Site weights: the geometric head starts from the intensity-weighted
+    // centroid of each spot (the baseline's, and its search anchors on the
+    // brightest site), the other heads from equal weights.
+    if (options.centroid_weighting.empty())
+      options.centroid_weighting = metadataFor(sensor, arch, head).arch.geometric_head ? "value" : "learned";
+    arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
     model = createModel(sensor, arch, deriveSeed(options.seed, 0xA7C4), head);
   }
   model.net->train();

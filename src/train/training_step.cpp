@@ -35,9 +35,11 @@ double Trainer::Impl::step(const std::vector<std::size_t>& order) {
   last.learning_rate = lr;
   optimizer->zero_grad();
   // The true classes resolve a class-resolved lattice while training, so the
-  // angles learn from the right pitch before the classifier has learned.
+  // angles learn from the right pitch before the classifier has learned; the
+  // true angles associate the geometric head's sites, so the angles learn
+  // from the right apertures before the coarse estimate has learned.
   const auto class_tensor = torch::tensor(classes);
-  const auto out = model.net->forward(input, class_tensor);
+  const auto out = model.net->forward(input, class_tensor, target);
   const double class_weight = sensor.numSubFovClasses() > 1 ? options.class_loss_weight : 0.0;
   const auto loss = trainingLoss(out, target, class_tensor, model.meta.arch.residual_scale, class_weight);
   loss.backward();

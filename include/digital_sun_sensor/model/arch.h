@@ -32,7 +32,13 @@ struct HeadOptions {
   // lattice_spotwise_phase); false gives the head of the models made before it
   // (the shipped thesis_ma).
   bool lattice_spotwise_phase = true;
+  // Which head solves the angles: "auto" (the geometric head for any mask
+  // of several apertures that is not a full centred lattice, else the
+  // mask-family heads), "geometric" (always) or "classic" (never).
+  std::string head = "auto";
 };
+// "auto", "geometric", "classic"; throws std::invalid_argument for another.
+void validateHeadChoice(const std::string& head);
 
 struct ArchSpec {
   std::string name;
@@ -86,6 +92,18 @@ struct ArchSpec {
   // through a size x size table of the nominal geometry (refraction, tan)
   // instead of a slope, so the learned terms stay small corrections. 0: slope.
   int geometric_prior_size = 0;
+  // The general (geometric) head (model/geometric_head.h): the angles are
+  // solved through a differentiable model of the sensor's geometry from the
+  // spots the network's site weights read, each site going to the aperture
+  // whose spot the geometry puts nearest at the coarse angles (the head
+  // above, now the coarse estimate; the true angles while training). The
+  // geometry itself is buffers of the model file (geometry.*).
+  bool geometric_head = false;
+  int geometric_apertures = 0, geometric_groups = 0;  // groups: apertures whose spots overlap read as one
+  double geometric_gate_um = 0.0;                     // sites farther from every spot are not read
+  double detector_pitch_um = 0.0;                     // the detector's pixels, to place the sites
+  int detector_width_px = 0, detector_height_px = 0;
+  double angle_scale_rad = 0.0;  // of the normalized angles (the metadata's)
   std::vector<int> head_hidden{256, 256};
   int num_classes = 4;  // sub-FOV classes of the sensor
 

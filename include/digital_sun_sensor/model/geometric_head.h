@@ -13,20 +13,9 @@
 #include <cstdint>
 #include <vector>
 
-namespace dss {
+#include "digital_sun_sensor/model/geometry_design.h"
 
-// A sensor design as the geometry takes it.
-struct GeometryDesign {
-  double height_um = 0.0;                           // detector surface to the mask's exit face
-  std::vector<std::array<double, 2>> apertures_um;  // centres in the mask frame
-  // Apertures whose spots overlap form one group, read as one spot: the
-  // flux-weighted mean of its members' spots (exact for light that adds up).
-  // Empty: every aperture its own group.
-  std::vector<int> groups;
-  std::vector<double> fluxes;       // relative flux per aperture (open area); empty: equal
-  double glass_thickness_um = 0.0;  // cover glass on the detector (0: none)
-  double glass_index = 1.0;
-};
+namespace dss {
 
 // Double tensors, registered as buffers under these names (prefixed
 // "geometry." in the model file): the nominal design at creation, a unit's
@@ -73,6 +62,11 @@ struct GeometricSolveOptions {
   // Associations from the reference, then from each solve.
   int association_rounds = 2;
   int gauss_newton_iterations = 5;
+  // Before associating, search the hypotheses "the image's heaviest site is
+  // group g's spot" (one per group) beside the reference for the one whose
+  // spots explain the most light and leave the fewest expected spots dark:
+  // the association then does not hang on a coarse estimate (inference).
+  bool search_reference = false;
 };
 
 struct GeometricSolution {

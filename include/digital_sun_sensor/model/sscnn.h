@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "digital_sun_sensor/model/arch.h"
+#include "digital_sun_sensor/model/geometric_head.h"
 #include "digital_sun_sensor/model/sparse_layers.h"
 #include "digital_sun_sensor/sparse/sparse_tensor.h"
 
@@ -31,6 +32,11 @@ struct SscnnOutput {
   // Aperture-code lattice head: the runner-up placement's score over the
   // chosen one's, [B] (>= 1; undefined for other heads).
   torch::Tensor code_margin;
+  // Geometric head (undefined for other heads): the coarse angles the sites
+  // were associated from [B, 2] (normalized; trained on their own loss), the
+  // spots read [B] (0: the coarse angles were returned) and their RMS
+  // distance from the geometry's spots [B] (um).
+  torch::Tensor coarse_angles, spots_read, solve_residual_um;
 };
 
 class SscnnNetImpl : public torch::nn::Module {
@@ -38,8 +44,11 @@ class SscnnNetImpl : public torch::nn::Module {
   explicit SscnnNetImpl(const ArchSpec& arch);
   // `known_classes` [B] (training only): the true sub-FOV classes, which then
   // resolve a class-resolved lattice head (LatticeResolve::kClass) in place
-  // of the predicted ones.
-  SscnnOutput forward(const sparse::SparseTensor& input, const torch::Tensor& known_classes = {});
+  // of the predicted ones; `known_angles` [B, 2] (training only, normalized):
+  // the true angles, from which the geometric head associates the sites in
+  // place of the coarse estimate.
+  SscnnOutput forward(const sparse::SparseTensor& input, const torch::Tensor& known_classes = {},
+                      const torch::Tensor& known_angles = {});
   // The same layers and weights evaluated densely (torch::conv2d over the whole
   // [B, 3, H, W] image), for the sparse-vs-dense benchmark.
   SscnnOutput forwardDense(const torch::Tensor& input);
@@ -57,6 +66,11 @@ class SscnnNetImpl : public torch::nn::Module {
   // position) per axis, read by Catmull-Rom interpolation instead of the linear
   // prior (no-op unless arch.geometric_prior_size > 0).
   void initGeometricPrior(const torch::Tensor& table, double extent_x, double extent_y);
+  // Geometric head: the sensor's nominal geometry (no-op for other heads).
+  void initGeometry(const GeometryDesign& design);
+  // The geometric head's geometry (null for other heads): what a unit
+  // calibration fits.
+  SensorGeometry geometry() const { return geometry_; }
   std::int64_t parameterCount() const;
 
   // The variance head's level, the sigma interface (model/sigma.cpp): adds to
@@ -101,6 +115,12 @@ class SscnnNetImpl : public torch::nn::Module {
   // (whole pitches, plus half a pitch for an even count) [K].
   torch::Tensor latticeSteps(int axis, const torch::TensorOptions& options) const;
   SscnnOutput head(const torch::Tensor& pooled, const SpotReading& spots, const torch::Tensor& known_classes);
+  // Geometric head: replaces the head's angles (kept as the coarse ones) by
+  // the solve through the geometry from the site weights w [N, 1] at
+  // positions xy [N, 2] (normalized), associated from known_angles when
+  // given, else from the coarse angles; adds the solve's log variance.
+  void solveAngles(SscnnOutput& out, const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& index,
+                   std::int64_t batch, const torch::Tensor& known_angles);
   // Normalized angles of the physics prior at a position [B, 2].
   torch::Tensor priorAngles(const torch::Tensor& position) const;
   torch::Tensor monomials(const torch::Tensor& centroid) const;
@@ -115,6 +135,8 @@ class SscnnNetImpl : public torch::nn::Module {
   torch::Tensor lattice_class_offsets_;  // buffer [num_classes, 2] (classes are the apertures)
   torch::Tensor lattice_log_area_;       // buffer [rows, columns]: log open area (um^2) per node (aperture code)
   torch::Tensor geometric_prior_, geometric_prior_extent_;  // buffers [1, 2, size, size], [2]
+  SensorGeometry geometry_{nullptr};                        // geometric head
+  torch::nn::Linear geometric_correction_{nullptr};         // its smooth correction of the solved angles
 };
 
 }  // namespace dss

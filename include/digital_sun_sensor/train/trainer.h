@@ -28,7 +28,7 @@ struct TrainOptions {
   // instead of fresh ones; it must suit the sensor and, if given, `arch`.
   std::string init_model;
   // Site weights of the centroid branch: "learned", "value" or "intensity" (ArchSpec::
-  // centroid_weighting; empty: the init model's, else "learned").
+  // centroid_weighting; empty: the init model's, else "value" with the geometric head, "learned" with the others).
   std::string centroid_weighting;
   // Angle corrections from the pooled features: "on" or "off" (ArchSpec::
   // feature_corrections; empty: the init model's, else "on").
@@ -37,6 +37,9 @@ struct TrainOptions {
   // (their sites pooled, as the shipped thesis_ma); empty: the init model's,
   // else "spotwise". HeadOptions::lattice_spotwise_phase.
   std::string lattice_phase;
+  // Which head solves the angles (HeadOptions::head): "auto", "geometric" or
+  // "classic"; empty: the init model's, else "auto".
+  std::string head;
   int batch_size = 64;
   int epochs = 20;                  // the learning-rate schedule spans this many epochs
   int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
