@@ -5,6 +5,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "geometric_solve.h"
+
 namespace dss {
 namespace {
 
@@ -25,16 +27,15 @@ torch::Tensor maskRotation(const torch::Tensor& rotation, const torch::Tensor& t
   return ry.matmul(rx).matmul(rz);
 }
 
-// Per image and aperture: the summed weight [B*K], the weighted centroid
-// [B*K, 2] and the weighted spread s^2 [B*K] of the sites assigned to it
-// (spot = index * K + aperture), and whether a site of it lies on the
-// detector's outermost rows or columns [B*K].
+// Per image and group: the summed weight [B*G], the weighted centroid
+// [B*G, 2] and the weighted spread s^2 [B*G] of the sites assigned to it
+// (spot = index * G + group).
 struct SpotReads {
-  torch::Tensor sum, centroid, spread, cut;
+  torch::Tensor sum, centroid, spread;
 };
 
-SpotReads readSpots(const torch::Tensor& site_um, const torch::Tensor& weight, const torch::Tensor& on_edge,
-                    const torch::Tensor& spot, std::int64_t spots) {
+SpotReads readSpots(const torch::Tensor& site_um, const torch::Tensor& weight, const torch::Tensor& spot,
+                    std::int64_t spots) {
   SpotReads r;
   auto per_spot = [&](const torch::Tensor& values) {
     return torch::zeros({spots, values.size(1)}, values.options()).index_add(0, spot, values);
@@ -44,38 +45,7 @@ SpotReads readSpots(const torch::Tensor& site_um, const torch::Tensor& weight, c
   const auto safe = r.sum.clamp_min(1e-30).view({-1, 1});
   r.centroid = per_spot(w * site_um) / safe;
   r.spread = (per_spot(w * site_um * site_um) / safe - r.centroid * r.centroid).sum(1);
-  r.cut = per_spot(on_edge.view({-1, 1}).to(torch::kFloat64)).view({-1}) > 0;
   return r;
-}
-
-// Angles [R, 2] that put group `group` [R]'s spot at target [R, 2] (um):
-// Newton from normal incidence, Jacobians by central differences.
-torch::Tensor invertGroups(const SensorGeometryImpl& geometry, const torch::Tensor& group,
-                           const torch::Tensor& target) {
-  auto spotOf = [&](const torch::Tensor& angles) {  // [R, 2]
-    return geometry.groupSpotsUm(angles).gather(1, group.view({-1, 1, 1}).expand({-1, 1, 2})).squeeze(1);
-  };
-  torch::Tensor angles = torch::zeros_like(target);
-  constexpr double kStep = 1e-6;
-  for (int it = 0; it < 6; ++it) {
-    std::vector<torch::Tensor> columns;
-    for (int axis = 0; axis < 2; ++axis) {
-      auto delta = torch::zeros({1, 2}, kDouble);
-      delta[0][axis] = kStep;
-      columns.push_back((spotOf(angles + delta) - spotOf(angles - delta)) / (2.0 * kStep));
-    }
-    const auto j = torch::stack(columns, 2);  // [R, 2, 2]
-    const auto r = target - spotOf(angles);
-    const auto det = j.select(1, 0).select(1, 0) * j.select(1, 1).select(1, 1) -
-                     j.select(1, 0).select(1, 1) * j.select(1, 1).select(1, 0);
-    const auto safe = torch::where(det.abs() > 1e-12, det, torch::ones_like(det));
-    const auto dx =
-        (j.select(1, 1).select(1, 1) * r.select(1, 0) - j.select(1, 0).select(1, 1) * r.select(1, 1)) / safe;
-    const auto dy =
-        (j.select(1, 0).select(1, 0) * r.select(1, 1) - j.select(1, 1).select(1, 0) * r.select(1, 0)) / safe;
-    angles = (angles + torch::stack({dx, dy}, 1)).clamp(-1.4, 1.4);
-  }
-  return angles;
 }
 
 }  // namespace
@@ -159,142 +129,28 @@ torch::Tensor SensorGeometryImpl::groupSpotsUm(const torch::Tensor& angles_rad) 
 
 namespace {
 
-// The solve's steps over one set of sites (positions [N, 2] um, image index
-// [N] of `batch` images): association, spot weights, Gauss-Newton.
-class Solver {
- public:
-  Solver(const SensorGeometryImpl& geometry, torch::Tensor sites, torch::Tensor index, std::int64_t batch,
-         const GeometricSolveOptions& options)
-      : geometry_(geometry),
-        sites_(std::move(sites)),
-        index_(std::move(index)),
-        batch_(batch),
-        groups_(geometry.groups()),
-        options_(options) {
-    // Cut: a site on the outermost row or column (|px| > half extent - 1).
-    const auto limit = torch::tensor(
-        {0.5 * (options.width_px - 2) * options.pitch_um, 0.5 * (options.height_px - 2) * options.pitch_um}, kDouble);
-    on_edge_ = (sites_.abs() > limit).any(1);
+// The geometry's buffers as the plain solve takes them.
+geometric::Design plainDesign(const SensorGeometryImpl& geometry) {
+  geometric::Design d;
+  d.mask.pitch_um = 1.0;
+  d.mask.height_um = geometry.height_um.item<double>();
+  d.mask.offset_x_um = geometry.offset_um[0].item<double>();
+  d.mask.offset_y_um = geometry.offset_um[1].item<double>();
+  d.mask.rotation_rad = geometry.rotation_rad.item<double>();
+  d.mask.tilt_x_rad = geometry.tilt_rad[0].item<double>();
+  d.mask.tilt_y_rad = geometry.tilt_rad[1].item<double>();
+  d.mask.glass_thickness_um = geometry.glass_thickness_um.item<double>();
+  d.mask.glass_index = geometry.glass_index.item<double>();
+  const auto apertures = geometry.apertures_um.contiguous();
+  const auto group = geometry.aperture_group.contiguous();
+  const auto flux = geometry.aperture_flux.contiguous();
+  for (std::int64_t k = 0; k < apertures.size(0); ++k) {
+    d.mask.apertures_um.emplace_back(apertures[k][0].item<double>(), apertures[k][1].item<double>());
+    d.group.push_back(static_cast<int>(group[k].item<std::int64_t>()));
+    d.flux.push_back(flux[k].item<double>());
   }
-
-  // Each site's spot (image * G + the group of the aperture whose spot is
-  // nearest at `angles`) and its squared distance from that aperture's spot.
-  std::pair<torch::Tensor, torch::Tensor> associate(const torch::Tensor& angles) const {
-    const auto predicted = geometry_.spotsUm(angles).index_select(0, index_);  // [N, K, 2]
-    const auto distance2 = (sites_.unsqueeze(1) - predicted).pow(2).sum(2);    // [N, K]
-    const auto [nearest2, aperture] = distance2.min(1);
-    return {index_ * groups_ + geometry_.aperture_group.index_select(0, aperture), nearest2};
-  }
-  torch::Tensor inGate(const torch::Tensor& distance2) const { return distance2 < options_.gate_um * options_.gate_um; }
-  SpotReads read(const torch::Tensor& w, const torch::Tensor& spot, const torch::Tensor& inside) const {
-    return readSpots(sites_, w * inside.to(torch::kFloat64), on_edge_ & inside, spot, batch_ * groups_);
-  }
-  // Weight of each spot in the solve [B, G]: sum / spread, whole spots only
-  // where the image has one.
-  torch::Tensor solveWeights(const SpotReads& r) const {
-    const auto spread = r.spread.clamp_min(options_.pitch_um * options_.pitch_um / 6.0);
-    const auto all = torch::where(r.sum > 0, r.sum / spread, torch::zeros_like(r.sum)).view({batch_, groups_});
-    const auto whole = all * (~r.cut).to(torch::kFloat64).view({batch_, groups_});
-    return torch::where(whole.sum(1, true) > 0, whole, all);
-  }
-  torch::Tensor jacobian(const torch::Tensor& angles) const {  // d(spot um)/d(angle) [B, G, 2, 2]
-    constexpr double kStep = 1e-6;
-    std::vector<torch::Tensor> columns;
-    for (int axis = 0; axis < 2; ++axis) {
-      auto delta = torch::zeros({1, 2}, kDouble);
-      delta[0][axis] = kStep;
-      columns.push_back((geometry_.groupSpotsUm(angles + delta) - geometry_.groupSpotsUm(angles - delta)) /
-                        (2.0 * kStep));
-    }
-    return torch::stack(columns, 3);
-  }
-  // Inverse of the normal matrix A = sum_k W_k J_k^T J_k [B, 2, 2] (zero
-  // where the image reads no spot).
-  torch::Tensor normalInverse(const torch::Tensor& jac, const torch::Tensor& w) const {
-    const auto a = (w.view({batch_, groups_, 1, 1}) * jac.transpose(2, 3).matmul(jac)).sum(1);
-    const auto a00 = a.select(1, 0).select(1, 0), a01 = a.select(1, 0).select(1, 1);
-    const auto a10 = a.select(1, 1).select(1, 0), a11 = a.select(1, 1).select(1, 1);
-    const auto det = a00 * a11 - a01 * a10;
-    const auto inv_det = torch::where(det > 1e-300, 1.0 / det.clamp_min(1e-300), torch::zeros_like(det));
-    return torch::stack({torch::stack({a11, -a01}, 1), torch::stack({-a10, a00}, 1)}, 1) * inv_det.view({-1, 1, 1});
-  }
-  // J^T W r per image [B, 2] for spots [B, G, 2] about predicted [B, G, 2].
-  torch::Tensor gradient(const torch::Tensor& jac, const torch::Tensor& w, const torch::Tensor& spots,
-                         const torch::Tensor& predicted) const {
-    const auto r = (spots - predicted).unsqueeze(3);
-    return (w.view({batch_, groups_, 1, 1}) * jac.transpose(2, 3).matmul(r)).sum(1).squeeze(2);
-  }
-  // Rounds of association and Gauss-Newton from `angles` (no autograd).
-  torch::Tensor refine(torch::Tensor angles, const torch::Tensor& w) const {
-    for (int round = 0; round < options_.association_rounds; ++round) {
-      const auto [spot, distance2] = associate(angles);
-      const SpotReads r = read(w, spot, inGate(distance2));
-      const auto solve_w = solveWeights(r);
-      const auto spots = r.centroid.view({batch_, groups_, 2});
-      for (int it = 0; it < options_.gauss_newton_iterations; ++it) {
-        const auto jac = jacobian(angles);
-        const auto step = normalInverse(jac, solve_w)
-                              .matmul(gradient(jac, solve_w, spots, geometry_.groupSpotsUm(angles)).unsqueeze(2))
-                              .squeeze(2);
-        // Angles stay inside the hemisphere whatever a wild step says.
-        angles = (angles + step).clamp(-1.4, 1.4);
-      }
-    }
-    return angles;
-  }
-  // How well spots at `angles` [B, 2] account for the light w [N] (no
-  // autograd): the fraction of each image's light within half a gate of a
-  // spot, less the fraction of the spots the detector should show (centre
-  // a quarter gate inside its edges) that hold under 2 % of the light.
-  torch::Tensor score(const torch::Tensor& angles, const torch::Tensor& w) const {
-    const auto [spot, distance2] = associate(angles);
-    const auto near = (distance2 < 0.25 * options_.gate_um * options_.gate_um).to(torch::kFloat64);
-    const auto total = torch::zeros({batch_}, kDouble).index_add(0, index_, w).clamp_min(1e-30);
-    const auto explained = torch::zeros({batch_}, kDouble).index_add(0, index_, w * near) / total;
-    const auto light = torch::zeros({batch_ * groups_}, kDouble).index_add(0, spot, w * near).view({batch_, groups_});
-    const auto limit = torch::tensor({0.5 * options_.width_px * options_.pitch_um - 0.25 * options_.gate_um,
-                                      0.5 * options_.height_px * options_.pitch_um - 0.25 * options_.gate_um},
-                                     kDouble);
-    const auto expected = (geometry_.groupSpotsUm(angles).abs() < limit).all(2).to(torch::kFloat64);
-    const auto dark = expected * (light < 0.02 * total.view({-1, 1})).to(torch::kFloat64);
-    return explained - dark.sum(1) / expected.sum(1).clamp_min(1.0);
-  }
-  std::int64_t batch() const { return batch_; }
-  std::int64_t groups() const { return groups_; }
-
- private:
-  const SensorGeometryImpl& geometry_;
-  torch::Tensor sites_, index_, on_edge_;
-  std::int64_t batch_, groups_;
-  GeometricSolveOptions options_;
-};
-
-// The best of the reference and, per group, the angles that put its spot on
-// the image's heaviest site, each refined and then scored (Solver::score).
-torch::Tensor searchReference(const SensorGeometryImpl& geometry, const torch::Tensor& sites, const torch::Tensor& w,
-                              const torch::Tensor& index, std::int64_t batch, const torch::Tensor& reference,
-                              const GeometricSolveOptions& options) {
-  const std::int64_t groups = geometry.groups(), hypotheses = groups + 1;
-  // The anchor: each image's heaviest site (the first of equals; an image
-  // without sites gets the origin and keeps its reference).
-  const std::int64_t n = sites.size(0);
-  const auto heaviest = torch::zeros({batch}, kDouble).scatter_reduce(0, index, w, "amax", false);
-  const auto row = torch::where(w == heaviest.index_select(0, index), torch::arange(n, torch::kLong),
-                                torch::full({n}, n, torch::kLong));
-  const auto first = torch::full({batch}, n, torch::kLong).scatter_reduce(0, index, row, "amin", true);
-  const auto anchor = torch::cat({sites, torch::zeros({1, 2}, kDouble)}).index_select(0, first);
-  const auto group = torch::arange(groups, torch::kLong).repeat({batch});
-  const auto placed = invertGroups(geometry, group, anchor.repeat_interleave(groups, 0)).view({batch, groups, 2});
-  const auto candidates = torch::cat({reference.unsqueeze(1), placed}, 1).view({-1, 2});  // [B * H, 2]
-  // Every site once per hypothesis: image b's hypothesis h is row b * H + h.
-  const auto hypothesis = torch::arange(hypotheses, torch::kLong);
-  const Solver expanded(geometry, sites.repeat_interleave(hypotheses, 0),
-                        (index.view({-1, 1}) * hypotheses + hypothesis.view({1, -1})).view({-1}), batch * hypotheses,
-                        options);
-  const auto w_expanded = w.repeat_interleave(hypotheses, 0);
-  const auto refined = expanded.refine(candidates, w_expanded);
-  const auto best = expanded.score(refined, w_expanded).view({batch, hypotheses}).argmax(1);  // first of equals
-  return refined.view({batch, hypotheses, 2}).gather(1, best.view({-1, 1, 1}).expand({-1, 1, 2})).squeeze(1);
+  d.groups = geometry.groups();
+  return d;
 }
 
 }  // namespace
@@ -302,33 +158,85 @@ torch::Tensor searchReference(const SensorGeometryImpl& geometry, const torch::T
 GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch::Tensor& site_um,
                                 const torch::Tensor& weight, const torch::Tensor& index, std::int64_t batch,
                                 const torch::Tensor& reference_rad, const GeometricSolveOptions& options) {
-  const auto sites = site_um.detach().to(torch::kFloat64);
-  const Solver solver(geometry, sites, index, batch, options);
   const std::int64_t groups = geometry.groups();
-  torch::Tensor angles = reference_rad.detach().to(torch::kFloat64);
-  {
-    torch::NoGradGuard no_grad;
-    const auto w = weight.detach().to(torch::kFloat64);
-    if (options.search_reference && sites.size(0) > 0)
-      angles = searchReference(geometry, sites, w, index, batch, angles, options);
-    angles = solver.refine(angles, w);
+  const auto sites = site_um.detach().to(torch::kFloat64).contiguous();
+  const auto plain_weight = weight.detach().to(torch::kFloat64).reshape({-1}).contiguous();
+  const auto image = index.to(torch::kLong).contiguous();
+  const auto reference = reference_rad.detach().to(torch::kFloat64).contiguous();
+  const std::int64_t n = sites.size(0);
+
+  // The search and the iterations, image by image, without autograd.
+  const geometric::Design design = plainDesign(geometry);
+  geometric::Options plain;
+  plain.gate_um = options.gate_um;
+  plain.pitch_um = options.pitch_um;
+  plain.width_px = options.width_px;
+  plain.height_px = options.height_px;
+  plain.rounds = options.association_rounds;
+  plain.iterations = options.gauss_newton_iterations;
+  plain.search = options.search_reference;
+  const auto xy = sites.accessor<double, 2>();
+  const auto w = plain_weight.accessor<double, 1>();
+  const auto b_of = image.accessor<std::int64_t, 1>();
+  const auto ref = reference.accessor<double, 2>();
+  std::vector<std::vector<geometric::Site>> per_image(static_cast<std::size_t>(batch));
+  std::vector<std::vector<std::int64_t>> rows(static_cast<std::size_t>(batch));
+  for (std::int64_t i = 0; i < n; ++i) {
+    const auto b = static_cast<std::size_t>(b_of[i]);
+    per_image[b].push_back({Eigen::Vector2d(xy[i][0], xy[i][1]), w[i]});
+    rows[b].push_back(i);
   }
-  // The last association and step in the graph.
-  const auto [spot, distance2] = solver.associate(angles);
-  const SpotReads r = solver.read(weight.to(torch::kFloat64), spot, solver.inGate(distance2));
-  const auto solve_w = solver.solveWeights(r);
+  auto angles = torch::zeros({batch, 2}, kDouble);
+  auto spot = torch::zeros({n}, torch::kLong);
+  auto inside = torch::zeros({n}, kDouble);
+  auto read = torch::zeros({batch, groups}, torch::kBool);
+  auto jac = torch::zeros({batch, groups, 2, 2}, kDouble);
+  auto inverse = torch::zeros({batch, 2, 2}, kDouble);
+  {
+    auto a = angles.accessor<double, 2>();
+    auto s = spot.accessor<std::int64_t, 1>();
+    auto in = inside.accessor<double, 1>();
+    auto r = read.accessor<bool, 2>();
+    auto j = jac.accessor<double, 4>();
+    auto inv = inverse.accessor<double, 3>();
+    for (std::int64_t b = 0; b < batch; ++b) {
+      const auto& image_sites = per_image[static_cast<std::size_t>(b)];
+      const auto solution = geometric::solveImage(design, image_sites, Eigen::Vector2d(ref[b][0], ref[b][1]), plain);
+      a[b][0] = solution.angles_rad.x();
+      a[b][1] = solution.angles_rad.y();
+      for (std::size_t k = 0; k < image_sites.size(); ++k) {
+        const std::int64_t row = rows[static_cast<std::size_t>(b)][k];
+        const int g = solution.group[k];
+        s[row] = b * groups + std::max(g, 0);
+        in[row] = g >= 0 ? 1.0 : 0.0;
+      }
+      for (std::int64_t g = 0; g < groups; ++g) {
+        r[b][g] = solution.weight[static_cast<std::size_t>(g)] > 0.0;
+        for (int u = 0; u < 2; ++u)
+          for (int v = 0; v < 2; ++v) j[b][g][u][v] = solution.jacobian[static_cast<std::size_t>(g)](u, v);
+      }
+      for (int u = 0; u < 2; ++u)
+        for (int v = 0; v < 2; ++v) inv[b][u][v] = solution.normal_inverse(u, v);
+    }
+  }
+  // The last step in the graph: the spots and their weights from the site
+  // weights, the geometry's spots from its tensors; Jacobian and normal
+  // matrix held at the solution.
+  const SpotReads r = readSpots(sites, weight.reshape({-1}).to(torch::kFloat64) * inside, spot, batch * groups);
+  const auto spread = r.spread.clamp_min(options.pitch_um * options.pitch_um / 6.0).view({batch, groups});
+  const auto solve_w = torch::where(read, r.sum.view({batch, groups}) / spread, torch::zeros_like(spread));
   const auto spots = r.centroid.view({batch, groups, 2});
-  const auto jac = solver.jacobian(angles).detach();
-  const auto inverse = solver.normalInverse(jac, solve_w.detach()).detach();
   const auto predicted = geometry.groupSpotsUm(angles);
+  const auto residual = (spots - predicted).unsqueeze(3);  // [B, G, 2, 1]
+  const auto gradient = (solve_w.view({batch, groups, 1, 1}) * jac.transpose(2, 3).matmul(residual)).sum(1);
   GeometricSolution out;
-  out.angles_rad = angles + inverse.matmul(solver.gradient(jac, solve_w, spots, predicted).unsqueeze(2)).squeeze(2);
+  out.angles_rad = angles + inverse.matmul(gradient).squeeze(2);
   torch::NoGradGuard no_grad;
   out.log_variance = torch::log(
       torch::stack({inverse.select(1, 0).select(1, 0), inverse.select(1, 1).select(1, 1)}, 1).clamp_min(1e-300));
-  const auto read = (solve_w.detach() > 0).to(torch::kFloat64);
-  out.spots_read = read.sum(1);
-  const auto squared = (spots.detach() - predicted.detach()).pow(2).sum(2) * read;
+  const auto read_spots = read.to(torch::kFloat64);
+  out.spots_read = read_spots.sum(1);
+  const auto squared = (spots.detach() - predicted.detach()).pow(2).sum(2) * read_spots;
   out.residual_um = (squared.sum(1) / out.spots_read.clamp_min(1.0)).sqrt();
   return out;
 }

@@ -1,0 +1,228 @@
+#include "geometric_solve.h"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "digital_sun_sensor/sim/geometry.h"
+
+namespace dss::geometric {
+namespace {
+
+constexpr double kFar = 1e12;  // um: where a spot no ray reaches lies
+constexpr double kMaxAngle = 1.4;
+
+std::vector<Eigen::Vector2d> apertureSpots(const Design& design, const Eigen::Vector2d& angles) {
+  const Eigen::Vector3d sun = sunVectorFromAngles(angles.x(), angles.y());
+  std::vector<Eigen::Vector2d> spots;
+  spots.reserve(static_cast<std::size_t>(design.mask.numApertures()));
+  for (int k = 0; k < design.mask.numApertures(); ++k) {
+    const auto p = design.mask.spotPx(k, sun);
+    spots.push_back(p ? *p : Eigen::Vector2d(kFar, kFar));
+  }
+  return spots;
+}
+
+// d(group spots)/d(angles) by central differences.
+std::vector<Eigen::Matrix2d> jacobians(const Design& design, const Eigen::Vector2d& angles) {
+  constexpr double kStep = 1e-6;
+  std::vector<Eigen::Matrix2d> j(static_cast<std::size_t>(design.groups));
+  for (int axis = 0; axis < 2; ++axis) {
+    Eigen::Vector2d d = Eigen::Vector2d::Zero();
+    d[axis] = kStep;
+    const auto plus = groupSpots(design, angles + d), minus = groupSpots(design, angles - d);
+    for (std::size_t g = 0; g < j.size(); ++g) j[g].col(axis) = (plus[g] - minus[g]) / (2.0 * kStep);
+  }
+  return j;
+}
+
+// The spots as the sites show them at given angles: per site its group and
+// squared distance from its nearest aperture's spot; per group the summed
+// weight, weighted centroid and spread of its sites within `radius_um`, and
+// whether one of them lies on the detector's outermost rows or columns.
+struct Reading {
+  std::vector<int> group;
+  std::vector<double> distance2;
+  std::vector<double> sum, spread;
+  std::vector<Eigen::Vector2d> centroid;
+  std::vector<char> cut;
+};
+
+Reading readSpots(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles, double radius_um,
+                  const Options& options) {
+  const auto spots = apertureSpots(design, angles);
+  const double edge_x = 0.5 * (options.width_px - 2) * options.pitch_um;
+  const double edge_y = 0.5 * (options.height_px - 2) * options.pitch_um;
+  const auto groups = static_cast<std::size_t>(design.groups);
+  Reading r;
+  r.group.resize(sites.size());
+  r.distance2.resize(sites.size());
+  r.sum.assign(groups, 0.0);
+  r.spread.assign(groups, 0.0);
+  r.centroid.assign(groups, Eigen::Vector2d::Zero());
+  r.cut.assign(groups, 0);
+  std::vector<Eigen::Vector2d> second(groups, Eigen::Vector2d::Zero());
+  for (std::size_t i = 0; i < sites.size(); ++i) {
+    double best = std::numeric_limits<double>::infinity();
+    int nearest = 0;
+    for (std::size_t k = 0; k < spots.size(); ++k) {
+      const double d2 = (sites[i].um - spots[k]).squaredNorm();
+      if (d2 < best) {
+        best = d2;
+        nearest = static_cast<int>(k);
+      }
+    }
+    r.distance2[i] = best;
+    r.group[i] = design.group[static_cast<std::size_t>(nearest)];
+    if (!(best < radius_um * radius_um)) continue;
+    const auto g = static_cast<std::size_t>(r.group[i]);
+    const double w = sites[i].weight;
+    r.sum[g] += w;
+    r.centroid[g] += w * sites[i].um;
+    second[g] += w * sites[i].um.cwiseProduct(sites[i].um);
+    if (std::abs(sites[i].um.x()) > edge_x || std::abs(sites[i].um.y()) > edge_y) r.cut[g] = 1;
+  }
+  for (std::size_t g = 0; g < groups; ++g) {
+    const double safe = std::max(r.sum[g], 1e-30);
+    r.centroid[g] /= safe;
+    r.spread[g] = (second[g] / safe - r.centroid[g].cwiseProduct(r.centroid[g])).sum();
+  }
+  return r;
+}
+
+// Weight of each group in the solve: its summed weight over its spread (the
+// centroid's noise variance goes as spread / sum); whole spots only where
+// the image has one.
+std::vector<double> solveWeights(const Reading& r, const Options& options) {
+  std::vector<double> all(r.sum.size(), 0.0), whole(r.sum.size(), 0.0);
+  bool any_whole = false;
+  for (std::size_t g = 0; g < r.sum.size(); ++g) {
+    if (!(r.sum[g] > 0.0)) continue;
+    all[g] = r.sum[g] / std::max(r.spread[g], options.pitch_um * options.pitch_um / 6.0);
+    if (!r.cut[g]) {
+      whole[g] = all[g];
+      any_whole = true;
+    }
+  }
+  return any_whole ? whole : all;
+}
+
+Eigen::Matrix2d normalInverse(const std::vector<Eigen::Matrix2d>& j, const std::vector<double>& w) {
+  Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
+  for (std::size_t g = 0; g < j.size(); ++g) a += w[g] * j[g].transpose() * j[g];
+  const double det = a.determinant();
+  return det > 1e-300 ? Eigen::Matrix2d(a.inverse()) : Eigen::Matrix2d::Zero();
+}
+
+Eigen::Vector2d clampAngles(const Eigen::Vector2d& a) {
+  return {std::clamp(a.x(), -kMaxAngle, kMaxAngle), std::clamp(a.y(), -kMaxAngle, kMaxAngle)};
+}
+
+// Rounds of association and Gauss-Newton from `angles`.
+Eigen::Vector2d refine(const Design& design, const std::vector<Site>& sites, Eigen::Vector2d angles,
+                       const Options& options) {
+  for (int round = 0; round < options.rounds; ++round) {
+    const Reading r = readSpots(design, sites, angles, options.gate_um, options);
+    const auto w = solveWeights(r, options);
+    for (int it = 0; it < options.iterations; ++it) {
+      const auto j = jacobians(design, angles);
+      const auto predicted = groupSpots(design, angles);
+      Eigen::Vector2d b = Eigen::Vector2d::Zero();
+      for (std::size_t g = 0; g < j.size(); ++g)
+        if (w[g] > 0.0) b += w[g] * j[g].transpose() * (r.centroid[g] - predicted[g]);
+      const Eigen::Vector2d step = normalInverse(j, w) * b;
+      if (!step.allFinite()) break;
+      angles = clampAngles(angles + step);
+      if (step.norm() < 1e-13) break;
+    }
+  }
+  return angles;
+}
+
+// How well spots at the angles account for the light: the fraction of it
+// within half a gate of a spot, less the fraction of the spots the detector
+// should show (centre a quarter gate inside its edges, allowing for a
+// hypothesis off by a spot radius) that hold under 2 % of it.
+double score(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles,
+             const Options& options) {
+  const Reading r = readSpots(design, sites, angles, 0.5 * options.gate_um, options);
+  double total = 0.0, explained = 0.0;
+  for (const auto& s : sites) total += s.weight;
+  for (double sum : r.sum) explained += sum;
+  const auto spots = groupSpots(design, angles);
+  const double limit_x = 0.5 * options.width_px * options.pitch_um - 0.25 * options.gate_um;
+  const double limit_y = 0.5 * options.height_px * options.pitch_um - 0.25 * options.gate_um;
+  int expected = 0, dark = 0;
+  for (std::size_t g = 0; g < spots.size(); ++g) {
+    if (std::abs(spots[g].x()) >= limit_x || std::abs(spots[g].y()) >= limit_y) continue;
+    ++expected;
+    if (r.sum[g] < 0.02 * total) ++dark;
+  }
+  return explained / std::max(total, 1e-30) - static_cast<double>(dark) / std::max(expected, 1);
+}
+
+// Angles that put group g's spot at `target` (Newton from normal incidence).
+Eigen::Vector2d placeGroup(const Design& design, int g, const Eigen::Vector2d& target) {
+  Eigen::Vector2d angles = Eigen::Vector2d::Zero();
+  for (int it = 0; it < 8; ++it) {
+    const auto j = jacobians(design, angles)[static_cast<std::size_t>(g)];
+    if (std::abs(j.determinant()) < 1e-12) break;
+    const Eigen::Vector2d step = j.inverse() * (target - groupSpots(design, angles)[static_cast<std::size_t>(g)]);
+    angles = clampAngles(angles + step);
+    if (step.norm() < 1e-12) break;
+  }
+  return angles;
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector2d> groupSpots(const Design& design, const Eigen::Vector2d& angles_rad) {
+  const auto spots = apertureSpots(design, angles_rad);
+  if (design.groups == design.mask.numApertures()) return spots;
+  std::vector<Eigen::Vector2d> sum(static_cast<std::size_t>(design.groups), Eigen::Vector2d::Zero());
+  std::vector<double> flux(sum.size(), 0.0);
+  for (std::size_t k = 0; k < spots.size(); ++k) {
+    const auto g = static_cast<std::size_t>(design.group[k]);
+    sum[g] += design.flux[k] * spots[k];
+    flux[g] += design.flux[k];
+  }
+  for (std::size_t g = 0; g < sum.size(); ++g) sum[g] /= flux[g];
+  return sum;
+}
+
+ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& reference_rad,
+                         const Options& options) {
+  Eigen::Vector2d angles = clampAngles(reference_rad);
+  if (options.search && !sites.empty()) {
+    // Hypotheses: the reference, and per group the angles that put its spot
+    // on the brightest site (the first of equals), each refined and scored.
+    std::size_t anchor = 0;
+    for (std::size_t i = 1; i < sites.size(); ++i)
+      if (sites[i].weight > sites[anchor].weight) anchor = i;
+    Eigen::Vector2d best_angles = refine(design, sites, angles, options);
+    double best = score(design, sites, best_angles, options);
+    for (int g = 0; g < design.groups; ++g) {
+      const Eigen::Vector2d candidate = refine(design, sites, placeGroup(design, g, sites[anchor].um), options);
+      const double s = score(design, sites, candidate, options);
+      if (s > best) {
+        best = s;
+        best_angles = candidate;
+      }
+    }
+    angles = best_angles;
+  }
+  angles = refine(design, sites, angles, options);
+  ImageSolution out;
+  out.angles_rad = angles;
+  const Reading r = readSpots(design, sites, angles, options.gate_um, options);
+  out.group.resize(sites.size());
+  for (std::size_t i = 0; i < sites.size(); ++i)
+    out.group[i] = r.distance2[i] < options.gate_um * options.gate_um ? r.group[i] : -1;
+  out.weight = solveWeights(r, options);
+  out.jacobian = jacobians(design, angles);
+  out.normal_inverse = normalInverse(out.jacobian, out.weight);
+  return out;
+}
+
+}  // namespace dss::geometric

@@ -1,0 +1,48 @@
+// The geometric head's solve for one image in plain double arithmetic: the
+// search over association hypotheses and the Gauss-Newton iterations, which
+// need no gradient (model/geometric_head.cpp takes the last step in the
+// graph). Thousands of tiny tensor ops cost more than the arithmetic.
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "digital_sun_sensor/baseline/calibration_model.h"
+
+namespace dss::geometric {
+
+struct Design {
+  MaskGeometry mask;         // with a pixel pitch of 1: spots in um
+  std::vector<int> group;    // per aperture
+  std::vector<double> flux;  // per aperture
+  int groups = 1;
+};
+
+struct Options {
+  double gate_um = 100.0;
+  double pitch_um = 1.0;
+  int width_px = 1, height_px = 1;
+  int rounds = 2, iterations = 5;
+  bool search = false;
+};
+
+struct Site {
+  Eigen::Vector2d um;
+  double weight = 0.0;
+};
+
+struct ImageSolution {
+  Eigen::Vector2d angles_rad = Eigen::Vector2d::Zero();
+  std::vector<int> group;                 // per site: its group, or -1 beyond the gate
+  std::vector<double> weight;             // per group: its weight in the solve (0: not read)
+  std::vector<Eigen::Matrix2d> jacobian;  // per group: d(spot um)/d(angles) at the solution
+  Eigen::Matrix2d normal_inverse = Eigen::Matrix2d::Zero();
+};
+
+// Spots of every group [um] for the angles (far away where no ray reaches).
+std::vector<Eigen::Vector2d> groupSpots(const Design& design, const Eigen::Vector2d& angles_rad);
+
+ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& reference_rad,
+                         const Options& options);
+
+}  // namespace dss::geometric
