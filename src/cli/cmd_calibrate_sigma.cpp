@@ -66,6 +66,10 @@ int runCalibrateSigma(int argc, char** argv) {
   sparse::configureThreads(1, 2);
   Model model = loadModel(args.get("model"));
   const SensorConfig sensor = parseSensorConfig(model.meta.sensor_yaml, args.get("model") + " (sensor)");
+  if (symmetry && *symmetry != InferenceSymmetry::kNone && model.meta.arch.geometric_head)
+    throw UsageError("dss calibrate-sigma: --symmetry " + args.get("symmetry") +
+                     ": the geometric head solves through the sensor's own geometry, which a mirror image does not "
+                     "share once a unit is calibrated; use none");
   if (symmetry) {
     const std::string why = symmetryMismatch(sensor, *symmetry);
     if (!why.empty())

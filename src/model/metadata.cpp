@@ -362,6 +362,10 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     } catch (const std::invalid_argument& e) {
       throw ModelError(origin + ": metadata key 'inference_symmetry': " + e.what());
     }
+    if (m.inference_symmetry != InferenceSymmetry::kNone && m.arch.geometric_head)
+      throw ModelError(origin + ": metadata key 'inference_symmetry' is '" +
+                       inferenceSymmetryName(m.inference_symmetry) +
+                       "' but the geometric head solves through the sensor's own geometry (none only)");
     if (m.inference_symmetry != InferenceSymmetry::kNone) {
       std::string why;
       try {

@@ -65,7 +65,11 @@ SscnnOutput SscnnNetImpl::head(const torch::Tensor& pooled, const SpotReading& s
         priorAngles(position) + arch_.residual_scale * centroid_skip_->forward(monomials(position));
     result.angles = result.angles.defined() ? result.angles + smooth : smooth;
   }
-  result.log_variance = variance_->forward(h.detach());
+  // The geometric head reads the variance once its solve is known.
+  if (arch_.geometric_head)
+    result.head_features = h.detach();
+  else
+    result.log_variance = variance_->forward(h.detach());
   return result;
 }
 
@@ -94,10 +98,12 @@ void SscnnNetImpl::solveAngles(SscnnOutput& out, const torch::Tensor& w, const t
       solved + arch_.residual_scale * geometric_correction_->forward(monomials(solved.detach()));
   const torch::Tensor read = (solution.spots_read > 0).view({-1, 1});
   out.angles = torch::where(read, corrected, out.coarse_angles);
-  // The solve's variance per unit weight, normalized; the variance head's
-  // output scales it (and has it alone where no spot was read).
+  // The solve's variance per unit weight (normalized; 0 where no spot was
+  // read) beside the features: the variance head weighs both, and the sigma
+  // interface (a constant, a factor) holds as for the other heads.
   const torch::Tensor solve_log_variance = (solution.log_variance - 2.0 * std::log(scale)).to(out.angles.scalar_type());
-  out.log_variance = out.log_variance + torch::where(read, solve_log_variance, torch::zeros_like(solve_log_variance));
+  out.log_variance = variance_->forward(torch::cat(
+      {out.head_features, torch::where(read, solve_log_variance, torch::zeros_like(solve_log_variance))}, 1));
   out.spots_read = solution.spots_read;
   out.solve_residual_um = solution.residual_um;
 }

@@ -51,7 +51,9 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   // The variance reads the angle MLP's features but sends no gradient into
   // them: its NLL, which grows as the variance shrinks, would otherwise steer
   // the features the angles need.
-  variance_ = register_module("variance", torch::nn::Linear(features, 2));
+  // The geometric head's variance also reads the solve's log variance per
+  // axis (how the read spots constrain the angles), as two more inputs.
+  variance_ = register_module("variance", torch::nn::Linear(features + (arch.geometric_head ? 2 : 0), 2));
   // The classes get their own branch: in a shared MLP the angle NLL's gradients,
   // which grow as the variance shrinks, drown the cross-entropy's.
   const bool class_resolved = arch.apertureClassLattice();
@@ -82,6 +84,11 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   output_->bias.zero_();
   variance_->weight.mul_(0.1);  // ...and unit variance
   variance_->bias.zero_();
+  if (arch.geometric_head) {  // ...or the solve's, per axis
+    variance_->weight.slice(1, features, features + 2).zero_();
+    variance_->weight[0][features] = 1.0;
+    variance_->weight[1][features + 1] = 1.0;
+  }
 }
 
 void SscnnNetImpl::initCentroidMap(double slope_x, double slope_y) {

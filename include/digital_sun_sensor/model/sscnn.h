@@ -37,6 +37,9 @@ struct SscnnOutput {
   // spots read [B] (0: the coarse angles were returned) and their RMS
   // distance from the geometry's spots [B] (um).
   torch::Tensor coarse_angles, spots_read, solve_residual_um;
+  // Geometric head, internal: the output MLP's features [B, F] (detached),
+  // read by the variance once the solve is known.
+  torch::Tensor head_features;
 };
 
 class SscnnNetImpl : public torch::nn::Module {
