@@ -11,8 +11,11 @@
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/geometric_head.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/random_mask.h"
+#include "digital_sun_sensor/sim/renderer.h"
 #include "gradcheck.h"
 
 namespace dss {
@@ -215,6 +218,54 @@ TEST(GeometricHead, GradientsThroughTheSolveMatchFiniteDifferences) {
         return out;
       },
       {weights, f.geometry->height_um.clone(), f.geometry->apertures_um.clone()}, 1e-6, 1e-6);
+}
+
+TEST(GeometricHead, ModelKeepsItsGeometryAsNamedValuesAndRoundTrips) {
+  const Fixture f = makeFixture(5, 12);
+  Model m = createModel(f.config, "resnet10_w16", 3);
+  ASSERT_TRUE(m.meta.arch.geometric_head);
+  EXPECT_EQ(m.meta.arch.geometric_apertures, 5);
+  EXPECT_EQ(m.meta.arch.centroid_weighting, CentroidWeighting::kLearned);  // as asked; dss train defaults to value
+  // The nominal design, by name: the height to the mask's mid-plane.
+  const auto buffers = m.net->named_buffers();
+  ASSERT_TRUE(buffers.contains("geometry.height_um"));
+  EXPECT_DOUBLE_EQ(buffers["geometry.height_um"].item<double>(),
+                   1000.0 * (f.config.mask.height_mm + 0.5 * f.config.mask.thickness_mm));
+  EXPECT_DOUBLE_EQ(buffers["geometry.apertures_um"][4][1].item<double>(), f.config.mask.apertures[4].y_um);
+  EXPECT_DOUBLE_EQ(buffers["geometry.glass_index"].item<double>(), f.config.cover_glass.refractive_index);
+  // A unit's geometry (here its height) survives the file.
+  {
+    torch::NoGradGuard no_grad;
+    m.net->geometry()->height_um.add_(12.5);
+  }
+  m.net->eval();
+  const std::string path = ::testing::TempDir() + "/geometric.dssmodel";
+  saveModel(m, path);
+  const Model loaded = loadModel(path, &f.config);
+  EXPECT_TRUE(loaded.meta.arch.geometric_head);
+  EXPECT_DOUBLE_EQ(loaded.net->geometry()->height_um.item<double>(), buffers["geometry.height_um"].item<double>());
+  const Renderer renderer(SensorInstance::nominalOf(f.config));
+  std::vector<cv::Mat> images;
+  for (int k = 0; k < 3; ++k)
+    images.push_back(renderer.render(sunVectorFromAngles(degToRad(2.0 - 2 * k), degToRad(-1.5 + k)), 5 + k, nullptr));
+  torch::NoGradGuard no_grad;
+  const auto input = encodeImages(images, m.meta.input);
+  const auto a = m.net->forward(input), b = loaded.net->forward(input);
+  EXPECT_TRUE(torch::equal(a.angles, b.angles));
+  EXPECT_TRUE(torch::equal(a.log_variance, b.log_variance));
+  EXPECT_GE(a.spots_read.min().item<double>(), 1.0);
+  std::remove(path.c_str());
+  // Mirror-image inference is refused for it.
+  std::string yaml = metadataToYaml(m.meta);
+  const auto at = yaml.find("inference_symmetry: none");
+  ASSERT_NE(at, std::string::npos);
+  yaml.replace(at, std::string("inference_symmetry: none").size(), "inference_symmetry: dihedral");
+  try {
+    metadataFromYaml(yaml, "test");
+    FAIL() << "a geometric head with mirror-image inference was accepted";
+  } catch (const ModelError& e) {
+    EXPECT_NE(std::string(e.what()).find("geometric head"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace
