@@ -10,7 +10,7 @@ Keys:
                     BAG = {name, count, seed, [offset], [sampling], [anomalies]}
                     and the bag is DATA/<model>.<name>.bag
   train             {arch, epochs, lr, seed, centroid_weighting, feature_corrections,
-                    [lattice_phase]}: dss train options
+                    [lattice_phase], [head]}: dss train options
   calibrate_sigma   {correction_degree: keep|none|D, symmetry: keep|none|flips|dihedral}
   headline          {alpha_mean_deg, beta_mean_deg}: the model's mean error on the test bag,
                     which test/test_shipped_models.cpp pins (not printed)
@@ -57,7 +57,7 @@ def main():
     check(path, "bags", recipe["bags"], ("train", "test", "sigma"))
     train = recipe["train"]
     check(path, "train", train, ("arch", "epochs", "lr", "seed", "centroid_weighting", "feature_corrections"),
-          ("lattice_phase",))
+          ("lattice_phase", "head"))
     sigma = recipe["calibrate_sigma"]
     check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"))
     out = {
@@ -73,6 +73,7 @@ def main():
         "WEIGHTING": str(train["centroid_weighting"]),
         "FEATURES": str(train["feature_corrections"]).lower().replace("true", "on").replace("false", "off"),
         "LATTICE_PHASE": str(train.get("lattice_phase", "")),
+        "HEAD": str(train.get("head", "")),
         "CORRECTION": str(sigma["correction_degree"]),
         "SYMMETRY": str(sigma["symmetry"]),
     }

@@ -41,6 +41,7 @@ for model in "${models[@]}"; do
   test="$(make_bag "$model" "$TEST_BAG")"
   phase=()
   [ -n "$LATTICE_PHASE" ] && phase=(--lattice-phase "$LATTICE_PHASE")
+  [ -n "$HEAD" ] && phase+=(--head "$HEAD")
   train_and_evaluate "$model" "${train# }" "$test" "${sigma# }" "$EPOCHS" "$ARCH" "$CORRECTION" "$SYMMETRY" \
     --centroid-weighting "$WEIGHTING" --feature-corrections "$FEATURES" "${phase[@]}" --lr "$LR" --seed "$TRAIN_SEED"
 done

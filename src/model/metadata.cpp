@@ -134,6 +134,7 @@ void setGeometric(const SensorConfig& config, const HeadOptions& head, ArchSpec&
   arch.detector_pitch_um = config.detector.pitch_um;
   arch.detector_width_px = config.detector.width_px;
   arch.detector_height_px = config.detector.height_px;
+  arch.geometric_class_by_aperture = config.subfov == SubFovType::kNearestAperture;
 }
 
 }  // namespace
@@ -356,6 +357,14 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
   m.sensor_yaml = get<std::string>(root, "sensor", origin, "");
+  if (m.arch.geometric_head) {  // the class scheme comes with the sensor
+    try {
+      m.arch.geometric_class_by_aperture =
+          parseSensorConfig(m.sensor_yaml, origin + " (embedded sensor config)").subfov == SubFovType::kNearestAperture;
+    } catch (const ConfigError& e) {
+      throw ModelError(e.what());
+    }
+  }
   if (root["inference_symmetry"]) {  // absent in models made before it existed: none
     try {
       m.inference_symmetry = parseInferenceSymmetry(get<std::string>(root, "inference_symmetry", origin, ""));

@@ -106,6 +106,14 @@ void SscnnNetImpl::solveAngles(SscnnOutput& out, const torch::Tensor& w, const t
       {out.head_features, torch::where(read, solve_log_variance, torch::zeros_like(solve_log_variance))}, 1));
   out.spots_read = solution.spots_read;
   out.solve_residual_um = solution.residual_um;
+  torch::NoGradGuard no_grad;
+  const torch::Tensor angles_rad = out.angles.detach().to(torch::kFloat64) * scale;
+  if (arch_.geometric_class_by_aperture) {
+    out.resolved_class = geometry_->spotsUm(angles_rad).pow(2).sum(2).argmin(1);
+  } else {
+    const auto alpha = angles_rad.select(1, 0), beta = angles_rad.select(1, 1);
+    out.resolved_class = (alpha >= 0).to(torch::kLong) + 2 * (beta >= 0).to(torch::kLong);
+  }
 }
 
 void SscnnNetImpl::shiftLogVariance(double alpha, double beta) {

@@ -17,7 +17,7 @@ torch::Tensor trainingLoss(const SscnnOutput& out, const torch::Tensor& target, 
   // choice, and such an error would swamp its batch and, for about a thousand
   // steps, AdamW's second moments: it is left out of the angle terms.
   auto keep = torch::ones({error.size(0), 1}, error.options());
-  if (out.resolved_class.defined())
+  if (out.resolved_class.defined() && !out.coarse_angles.defined())  // lattice heads
     keep = (out.resolved_class.to(torch::kLong) == classes.to(torch::kLong)).to(error.scalar_type()).unsqueeze(1);
   const auto kept_terms = (2.0 * keep.sum()).clamp_min(1.0);
   const auto mse = (error.pow(2) * keep).sum() / kept_terms / (residual_scale * residual_scale);

@@ -104,6 +104,11 @@ struct ArchSpec {
   double detector_pitch_um = 0.0;                     // the detector's pixels, to place the sites
   int detector_width_px = 0, detector_height_px = 0;
   double angle_scale_rad = 0.0;  // of the normalized angles (the metadata's)
+  // The sub-FOV class reported is the solved angles' (their quadrant, or the
+  // aperture whose spot the geometry puts nearest the detector centre), not
+  // the classifier's, which only had to be right for the search. From the
+  // sensor's sub-FOV scheme (not a metadata key of its own).
+  bool geometric_class_by_aperture = false;
   std::vector<int> head_hidden{256, 256};
   int num_classes = 4;  // sub-FOV classes of the sensor
 

@@ -27,7 +27,8 @@ struct SscnnOutput {
   torch::Tensor log_variance;  // [B, 2] of the normalized angles
   torch::Tensor class_logits;  // [B, num_classes]
   // Lattice head resolved by the class: the class that goes with the
-  // resolved position, [B] (undefined otherwise: argmax of the logits).
+  // resolved position; geometric head: the solved angles' class; [B]
+  // (undefined otherwise: argmax of the logits).
   torch::Tensor resolved_class;
   // Aperture-code lattice head: the runner-up placement's score over the
   // chosen one's, [B] (>= 1; undefined for other heads).
