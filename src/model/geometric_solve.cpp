@@ -210,9 +210,10 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
         best_angles = candidate;
       }
     }
-    angles = best_angles;
+    angles = best_angles;  // refined already
+  } else {
+    angles = refine(design, sites, angles, options);
   }
-  angles = refine(design, sites, angles, options);
   ImageSolution out;
   out.angles_rad = angles;
   const Reading r = readSpots(design, sites, angles, options.gate_um, options);
