@@ -3,6 +3,7 @@
 // partial files left. bench infer/train: one JSON line with every figure.
 #include <digital_sun_sensor/SpotCentres.h>
 #include <digital_sun_sensor/SunAngles.h>
+#include <geometry_msgs/Vector3Stamped.h>
 #include <gtest/gtest.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
@@ -286,6 +287,12 @@ TEST(Baseline, BadBagsGetClearErrors) {
   r = run("eval --data " + good + " --estimator sscnn:" + calib);
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.output.find(calib), std::string::npos) << r.output;
+  // A unit calibration needs a model with a geometric head.
+  r = run("calibrate-unit --model " + std::string(DSS_SOURCE_DIR) + "/models/thesis_sa.dssmodel --data " + good +
+          " --out " + tmp("never.dssmodel"));
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.output.find("has no geometric head"), std::string::npos) << r.output;
+  EXPECT_FALSE(exists(tmp("never.dssmodel")));
   for (const auto& f : {empty, junk, good, cut, other, small, calib}) std::remove(f.c_str());
 }
 
@@ -315,6 +322,50 @@ TEST(Bench, InferAndTrainPrintOneJsonLine) {
   EXPECT_NE(r.output.find("cannot open '/nonexistent.dssmodel'"), std::string::npos) << r.output;
 }
 
+// Lab truth as a sun vector (geometry_msgs/Vector3Stamped) is read as
+// angles when it is in the sensor frame (or names none), and skipped with a
+// reason in another frame.
+TEST(Messages, SunVectorTruthIsReadInTheSensorFrameOnly) {
+  const std::string path = tmp("vector_truth.bag");
+  const std::vector<std::string> frames = {"sun_sensor_link", "", "base_link"};
+  {
+    rosbag::Bag bag(path, rosbag::bagmode::Write);
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      sensor_msgs::Image image;
+      image.header.stamp = ros::Time(1.0 + i);
+      image.encoding = "mono8";
+      image.width = image.height = image.step = 4;
+      image.data.assign(16, 7);
+      bag.write("/lab/image", image.header.stamp, image);
+      geometry_msgs::Vector3Stamped sun;
+      sun.header.stamp = image.header.stamp;
+      sun.header.frame_id = frames[i];
+      sun.vector.x = 0.1 * (i + 1);
+      sun.vector.y = -0.05;
+      sun.vector.z = 2.0;
+      bag.write("/lab/sun", sun.header.stamp, sun);
+    }
+  }
+  dss::DatasetTopics topics;
+  topics.image = "/lab/image";
+  topics.truth = "/lab/sun";
+  std::vector<dss::LabelledImage> read;
+  const dss::BagReadStats stats = dss::DatasetBagReader({path}, topics).forEach([&](const dss::LabelledImage& item) {
+    read.push_back(item);
+    return true;
+  });
+  ASSERT_EQ(read.size(), 2u);
+  EXPECT_DOUBLE_EQ(read[0].truth.alpha, std::atan2(0.1, 2.0));
+  EXPECT_DOUBLE_EQ(read[1].truth.alpha, std::atan2(0.2, 2.0));
+  EXPECT_DOUBLE_EQ(read[1].truth.beta, std::atan2(-0.05, 2.0));
+  EXPECT_TRUE(read[0].truth.valid);
+  EXPECT_EQ(read[0].truth.subfov_class, digital_sun_sensor::SunAngles::SUBFOV_UNKNOWN);
+  EXPECT_EQ(stats.bad_truths, 1u);
+  EXPECT_NE(stats.first_bad_truth.find("base_link"), std::string::npos) << stats.first_bad_truth;
+  EXPECT_EQ(stats.unmatched_images, 1u);
+  std::remove(path.c_str());
+}
+
 }  // namespace
 
 // The message's STATUS_* constants and the core's codes are one list.
@@ -332,7 +383,8 @@ TEST(Messages, StatusConstantsAreTheCoreCodes) {
                                             SunAngles::STATUS_INCONSISTENT_SPOTS,
                                             SunAngles::STATUS_SPOT_AT_EDGE,
                                             SunAngles::STATUS_ESTIMATOR_ERROR,
-                                            SunAngles::STATUS_NO_ESTIMATOR};
+                                            SunAngles::STATUS_NO_ESTIMATOR,
+                                            SunAngles::STATUS_MODEL_MISMATCH};
   const std::vector<std::string> core(std::begin(dss::status::kAll), std::end(dss::status::kAll));
   EXPECT_EQ(message, core);
   EXPECT_EQ(dss::status::statusCode("bad_image: 256x256"), SunAngles::STATUS_BAD_IMAGE);

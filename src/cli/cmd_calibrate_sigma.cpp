@@ -2,7 +2,8 @@
 // model's inference symmetry (model/symmetry) and refits its smooth angle
 // correction (src/train/bias_calibration), then refits the level of its
 // predicted uncertainty (src/train/sigma_calibration), records their input
-// envelope (model/input_envelope) and writes the model.
+// envelope (model/input_envelope) and, for a geometric head, its spot-mismatch
+// level (model/unit_calibration), and writes the model.
 #include <cmath>
 #include <iostream>
 #include <optional>
@@ -11,6 +12,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/unit_calibration.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/bias_calibration.h"
@@ -98,6 +100,14 @@ int runCalibrateSigma(int argc, char** argv) {
               << bias->cross_validated_rms_deg.front() << " deg; " << bias->outliers << " outliers left out)\n";
   }
   const SigmaCalibration c = calibrateSigma(model, data.samples, max_images ? max_images : data.samples.size());
+  std::optional<MismatchCalibration> mismatch;
+  if (model.meta.arch.geometric_head) {
+    try {
+      mismatch = calibrateSpotMismatch(model, data.samples, max_images);
+    } catch (const std::invalid_argument& e) {
+      std::cerr << "spot mismatch level not measured: " << e.what() << "\n";
+    }
+  }
   recordInputEnvelope(model.meta, envelope);
   saveModel(model, args.get("out"));
   std::cerr << "wrote " << args.get("out") << "\n";
@@ -124,6 +134,9 @@ int runCalibrateSigma(int argc, char** argv) {
               << ", \"correction_rms_alpha_after_deg\": " << bias->rms_alpha_after_deg
               << ", \"correction_rms_beta_after_deg\": " << bias->rms_beta_after_deg;
   }
+  if (mismatch)
+    std::cout << ", \"mismatch_level\": " << mismatch->level << ", \"mismatch_threshold\": " << mismatch->threshold
+              << ", \"mismatch_flagged_fraction\": " << mismatch->flagged_fraction;
   std::cout << ", \"scale_alpha\": " << c.scale_alpha << ", \"scale_beta\": " << c.scale_beta
             << coverage("before_alpha", c.alpha_before) << coverage("before_beta", c.beta_before)
             << coverage("after_alpha", c.alpha_after) << coverage("after_beta", c.beta_after) << "}" << std::endl;

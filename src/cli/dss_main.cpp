@@ -16,6 +16,7 @@ const char* kUsage =
     "  calibrate  fit the conventional baseline (centroid + calibration model) to a labelled bag\n"
     "  train      train an SSCNN model on labelled bags (checkpoints, --resume)\n"
     "  calibrate-sigma  refit the level of a model's predicted sigma on held-out labelled images\n"
+    "  calibrate-unit   fit a geometric-head model's geometry to labelled images of one built unit\n"
     "  eval       evaluate an estimator (sscnn:MODEL | centroid:CALIB) on a labelled bag: one JSON line\n"
     "  report     credibility report of a model beside the baseline: HTML, PNG plots, summary.json\n"
     "  bench      benchmarks printing one JSON line (bench sim|infer|train)\n";
@@ -32,6 +33,7 @@ int main(int argc, char** argv) {
     if (command == "calibrate") return dss::cli::runCalibrate(argc, argv);
     if (command == "train") return dss::cli::runTrain(argc, argv);
     if (command == "calibrate-sigma") return dss::cli::runCalibrateSigma(argc, argv);
+    if (command == "calibrate-unit") return dss::cli::runCalibrateUnit(argc, argv);
     if (command == "eval") return dss::cli::runEval(argc, argv);
     if (command == "report") return dss::cli::runReport(argc, argv);
     if (command == "--help" || command == "-h" || command == "help") {

@@ -20,8 +20,12 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
     resolved_class = out.resolved_class.to(torch::kLong).contiguous();
     resolved.emplace(resolved_class.accessor<std::int64_t, 1>());
   }
-  torch::Tensor code_margin;
-  std::optional<torch::TensorAccessor<double, 1>> margin;
+  torch::Tensor code_margin, residual_per_dof;
+  std::optional<torch::TensorAccessor<double, 1>> margin, residual;
+  if (out.solve_residual_per_dof.defined() && meta.mismatch_level > 0.0) {
+    residual_per_dof = out.solve_residual_per_dof.detach().to(torch::kDouble).contiguous();
+    residual.emplace(residual_per_dof.accessor<double, 1>());
+  }
   if (out.code_margin.defined()) {
     code_margin = out.code_margin.detach().to(torch::kDouble).contiguous();
     margin.emplace(code_margin.accessor<double, 1>());
@@ -50,6 +54,7 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
       alpha_variance += gva / group;
       beta_variance += gvb / group;
       if (margin) p.code_margin = std::min(p.code_margin, (*margin)[i + g]);
+      if (residual) p.spot_mismatch = std::max(p.spot_mismatch, (*residual)[i + g] / meta.mismatch_level);
     }
     const auto bias = meta.angle_correction.bias(alpha, beta);
     p.alpha_rad = (alpha - bias[0]) * s;

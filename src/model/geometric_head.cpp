@@ -127,33 +127,54 @@ torch::Tensor SensorGeometryImpl::groupSpotsUm(const torch::Tensor& angles_rad) 
          sum.view({1, -1, 1});
 }
 
-namespace {
+MaskGeometry SensorGeometryImpl::maskGeometry() const {
+  MaskGeometry m;
+  m.pitch_um = 1.0;
+  m.height_um = height_um.item<double>();
+  m.offset_x_um = offset_um[0].item<double>();
+  m.offset_y_um = offset_um[1].item<double>();
+  m.rotation_rad = rotation_rad.item<double>();
+  m.tilt_x_rad = tilt_rad[0].item<double>();
+  m.tilt_y_rad = tilt_rad[1].item<double>();
+  m.glass_thickness_um = glass_thickness_um.item<double>();
+  m.glass_index = glass_index.item<double>();
+  const auto a = apertures_um.contiguous();
+  const auto xy = a.accessor<double, 2>();
+  for (std::int64_t k = 0; k < a.size(0); ++k) m.apertures_um.emplace_back(xy[k][0], xy[k][1]);
+  return m;
+}
 
-// The geometry's buffers as the plain solve takes them.
-geometric::Design plainDesign(const SensorGeometryImpl& geometry) {
+void SensorGeometryImpl::setMaskGeometry(const MaskGeometry& m) {
+  if (m.numApertures() != apertures())
+    throw std::invalid_argument("sensor geometry: " + std::to_string(m.numApertures()) + " apertures for a model of " +
+                                std::to_string(apertures()));
+  if (!(m.height_um > 0.0) || !std::isfinite(m.height_um))
+    throw std::invalid_argument("sensor geometry: the mask height must be positive");
+  torch::NoGradGuard no_grad;
+  height_um.fill_(m.height_um);
+  offset_um[0] = m.offset_x_um;
+  offset_um[1] = m.offset_y_um;
+  rotation_rad.fill_(m.rotation_rad);
+  tilt_rad[0] = m.tilt_x_rad;
+  tilt_rad[1] = m.tilt_y_rad;
+  for (int k = 0; k < m.numApertures(); ++k) {
+    apertures_um[k][0] = m.apertures_um[static_cast<std::size_t>(k)].x();
+    apertures_um[k][1] = m.apertures_um[static_cast<std::size_t>(k)].y();
+  }
+}
+
+geometric::Design geometric::designOf(const SensorGeometryImpl& geometry) {
   geometric::Design d;
-  d.mask.pitch_um = 1.0;
-  d.mask.height_um = geometry.height_um.item<double>();
-  d.mask.offset_x_um = geometry.offset_um[0].item<double>();
-  d.mask.offset_y_um = geometry.offset_um[1].item<double>();
-  d.mask.rotation_rad = geometry.rotation_rad.item<double>();
-  d.mask.tilt_x_rad = geometry.tilt_rad[0].item<double>();
-  d.mask.tilt_y_rad = geometry.tilt_rad[1].item<double>();
-  d.mask.glass_thickness_um = geometry.glass_thickness_um.item<double>();
-  d.mask.glass_index = geometry.glass_index.item<double>();
-  const auto apertures = geometry.apertures_um.contiguous();
+  d.mask = geometry.maskGeometry();
   const auto group = geometry.aperture_group.contiguous();
   const auto flux = geometry.aperture_flux.contiguous();
-  for (std::int64_t k = 0; k < apertures.size(0); ++k) {
-    d.mask.apertures_um.emplace_back(apertures[k][0].item<double>(), apertures[k][1].item<double>());
+  for (std::int64_t k = 0; k < group.size(0); ++k) {
     d.group.push_back(static_cast<int>(group[k].item<std::int64_t>()));
     d.flux.push_back(flux[k].item<double>());
   }
   d.groups = geometry.groups();
   return d;
 }
-
-}  // namespace
 
 GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch::Tensor& site_um,
                                 const torch::Tensor& weight, const torch::Tensor& index, std::int64_t batch,
@@ -166,7 +187,7 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
   const std::int64_t n = sites.size(0);
 
   // The search and the iterations, image by image, without autograd.
-  const geometric::Design design = plainDesign(geometry);
+  const geometric::Design design = geometric::designOf(geometry);
   geometric::Options plain;
   plain.gate_um = options.gate_um;
   plain.pitch_um = options.pitch_um;
@@ -238,6 +259,9 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
   out.spots_read = read_spots.sum(1);
   const auto squared = (spots.detach() - predicted.detach()).pow(2).sum(2) * read_spots;
   out.residual_um = (squared.sum(1) / out.spots_read.clamp_min(1.0)).sqrt();
+  const auto dof = 2.0 * out.spots_read - 2.0;
+  out.residual_per_dof =
+      torch::where(dof > 0, (squared * solve_w.detach()).sum(1) / dof.clamp_min(1.0), torch::zeros_like(dof));
   return out;
 }
 

@@ -37,17 +37,7 @@ std::vector<Eigen::Matrix2d> jacobians(const Design& design, const Eigen::Vector
   return j;
 }
 
-// The spots as the sites show them at given angles: per site its group and
-// squared distance from its nearest aperture's spot; per group the summed
-// weight, weighted centroid and spread of its sites within `radius_um`, and
-// whether one of them lies on the detector's outermost rows or columns.
-struct Reading {
-  std::vector<int> group;
-  std::vector<double> distance2;
-  std::vector<double> sum, spread;
-  std::vector<Eigen::Vector2d> centroid;
-  std::vector<char> cut;
-};
+}  // namespace
 
 Reading readSpots(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles, double radius_um,
                   const Options& options) {
@@ -91,9 +81,6 @@ Reading readSpots(const Design& design, const std::vector<Site>& sites, const Ei
   return r;
 }
 
-// Weight of each group in the solve: its summed weight over its spread (the
-// centroid's noise variance goes as spread / sum); whole spots only where
-// the image has one.
 std::vector<double> solveWeights(const Reading& r, const Options& options) {
   std::vector<double> all(r.sum.size(), 0.0), whole(r.sum.size(), 0.0);
   bool any_whole = false;
@@ -107,6 +94,8 @@ std::vector<double> solveWeights(const Reading& r, const Options& options) {
   }
   return any_whole ? whole : all;
 }
+
+namespace {
 
 Eigen::Matrix2d normalInverse(const std::vector<Eigen::Matrix2d>& j, const std::vector<double>& w) {
   Eigen::Matrix2d a = Eigen::Matrix2d::Zero();

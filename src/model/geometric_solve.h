@@ -9,6 +9,10 @@
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
 
+namespace dss {
+class SensorGeometryImpl;
+}
+
 namespace dss::geometric {
 
 struct Design {
@@ -17,6 +21,10 @@ struct Design {
   std::vector<double> flux;  // per aperture
   int groups = 1;
 };
+
+// The geometric head's geometry tensors as the plain solve takes them
+// (model/geometric_head.cpp).
+Design designOf(const SensorGeometryImpl& geometry);
 
 struct Options {
   double gate_um = 100.0;
@@ -38,6 +46,25 @@ struct ImageSolution {
   std::vector<Eigen::Matrix2d> jacobian;  // per group: d(spot um)/d(angles) at the solution
   Eigen::Matrix2d normal_inverse = Eigen::Matrix2d::Zero();
 };
+
+// The spots as the sites show them at given angles: per site its group and
+// squared distance from its nearest aperture's spot; per group the summed
+// weight, weighted centroid and spread of its sites within `radius_um`, and
+// whether one of them lies on the detector's outermost rows or columns.
+struct Reading {
+  std::vector<int> group;
+  std::vector<double> distance2;
+  std::vector<double> sum, spread;
+  std::vector<Eigen::Vector2d> centroid;
+  std::vector<char> cut;
+};
+Reading readSpots(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles, double radius_um,
+                  const Options& options);
+
+// Weight of each group in the solve: its summed weight over its spread (the
+// centroid's noise variance goes as spread / sum); whole spots only where
+// the image has one.
+std::vector<double> solveWeights(const Reading& r, const Options& options);
 
 // Spots of every group [um] for the angles (far away where no ray reaches).
 std::vector<Eigen::Vector2d> groupSpots(const Design& design, const Eigen::Vector2d& angles_rad);

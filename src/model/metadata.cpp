@@ -237,7 +237,14 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "reference_sites" << YAML::Value << m.sigma_site_law.reference_sites;
     e << YAML::EndMap;
   }
+  if (m.mismatch_level > 0.0) {
+    e << YAML::Key << "spot_mismatch" << YAML::Value << YAML::BeginMap;
+    e << YAML::Key << "level" << YAML::Value << m.mismatch_level;
+    e << YAML::Key << "threshold" << YAML::Value << m.mismatch_threshold;
+    e << YAML::EndMap;
+  }
   e << YAML::Key << "sensor_name" << YAML::Value << m.sensor_name;
+  if (m.unit_yaml != "{}") e << YAML::Key << "unit" << YAML::Value << mapFromText(m.unit_yaml, "unit calibration");
   e << YAML::Key << "training" << YAML::Value << mapFromText(m.training_yaml, "training summary");
   e << YAML::Key << "metrics" << YAML::Value << mapFromText(m.metrics_yaml, "metrics");
   e << YAML::Key << "sensor" << YAML::Value << YAML::Literal << m.sensor_yaml;
@@ -355,7 +362,22 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
       throw ModelError(origin + ": metadata key 'sigma_site_law' needs an exponent within +-10 and a positive " +
                        "reference_sites");
   }
+  if (const YAML::Node mismatch = root["spot_mismatch"]) {  // absent: not measured
+    if (!mismatch.IsMap()) throw ModelError(origin + ": metadata key 'spot_mismatch' is not a map");
+    m.mismatch_level = get<double>(mismatch, "level", origin, "spot_mismatch.");
+    m.mismatch_threshold = get<double>(mismatch, "threshold", origin, "spot_mismatch.");
+    if (!(m.mismatch_level > 0.0) || !std::isfinite(m.mismatch_level) || !(m.mismatch_threshold > 0.0) ||
+        !std::isfinite(m.mismatch_threshold) || !m.arch.geometric_head)
+      throw ModelError(origin +
+                       ": metadata key 'spot_mismatch' needs a positive level and threshold, and a "
+                       "geometric head");
+  }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
+  if (const YAML::Node unit = root["unit"]) {  // absent: the nominal design
+    if (!unit.IsMap() || !m.arch.geometric_head)
+      throw ModelError(origin + ": metadata key 'unit' must be a map, in a model with a geometric head");
+    m.unit_yaml = YAML::Dump(unit);
+  }
   m.sensor_yaml = get<std::string>(root, "sensor", origin, "");
   if (m.arch.geometric_head) {  // the class scheme comes with the sensor
     try {

@@ -93,9 +93,7 @@ void SscnnNetImpl::solveAngles(SscnnOutput& out, const torch::Tensor& w, const t
   // The geometry's angles plus a smooth learned correction (what the
   // nominal geometry leaves: diffraction and vignetting shifts, a mask
   // thickness), in the network's precision.
-  const torch::Tensor solved = (solution.angles_rad / scale).to(out.angles.scalar_type());
-  const torch::Tensor corrected =
-      solved + arch_.residual_scale * geometric_correction_->forward(monomials(solved.detach()));
+  const torch::Tensor corrected = correctSolvedAngles((solution.angles_rad / scale).to(out.angles.scalar_type()));
   const torch::Tensor read = (solution.spots_read > 0).view({-1, 1});
   out.angles = torch::where(read, corrected, out.coarse_angles);
   // The solve's variance per unit weight (normalized; 0 where no spot was
@@ -106,6 +104,10 @@ void SscnnNetImpl::solveAngles(SscnnOutput& out, const torch::Tensor& w, const t
       {out.head_features, torch::where(read, solve_log_variance, torch::zeros_like(solve_log_variance))}, 1));
   out.spots_read = solution.spots_read;
   out.solve_residual_um = solution.residual_um;
+  out.solve_residual_per_dof = solution.residual_per_dof;
+  out.solve_site_um = site_um.detach();
+  out.solve_site_weight = w.detach().reshape({-1}).to(torch::kFloat64);
+  out.solve_site_image = index;
   torch::NoGradGuard no_grad;
   const torch::Tensor angles_rad = out.angles.detach().to(torch::kFloat64) * scale;
   if (arch_.geometric_class_by_aperture) {
@@ -114,6 +116,10 @@ void SscnnNetImpl::solveAngles(SscnnOutput& out, const torch::Tensor& w, const t
     const auto alpha = angles_rad.select(1, 0), beta = angles_rad.select(1, 1);
     out.resolved_class = (alpha >= 0).to(torch::kLong) + 2 * (beta >= 0).to(torch::kLong);
   }
+}
+
+torch::Tensor SscnnNetImpl::correctSolvedAngles(const torch::Tensor& solved) {
+  return solved + arch_.residual_scale * geometric_correction_->forward(monomials(solved.detach()));
 }
 
 void SscnnNetImpl::shiftLogVariance(double alpha, double beta) {

@@ -1,5 +1,7 @@
 #include "digital_sun_sensor/model/sscnn_estimator.h"
 
+#include <yaml-cpp/yaml.h>
+
 #include <iomanip>
 #include <sstream>
 #include <stdexcept>
@@ -32,6 +34,18 @@ std::string SscnnEstimator::inferenceSymmetry() const {
   return inferenceSymmetryName(impl_->model.meta.inference_symmetry);
 }
 
+double SscnnEstimator::mismatchThreshold() const { return impl_->model.meta.mismatch_threshold; }
+
+std::string SscnnEstimator::unitCalibration() const {
+  if (impl_->model.meta.unit_yaml == "{}") return "";
+  try {
+    const YAML::Node unit = YAML::Load(impl_->model.meta.unit_yaml);
+    return unit["data"] ? unit["data"].as<std::string>() : "calibrated";
+  } catch (const YAML::Exception&) {
+    return "calibrated";
+  }
+}
+
 std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& images) {
   std::vector<SunEstimate> out(images.size());
   // Unusable images are answered individually; the rest run as one batch.
@@ -55,6 +69,7 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
     e.beta_rad = p.beta_rad;
     e.covariance = {p.alpha_variance_rad2, 0.0, 0.0, p.beta_variance_rad2};
     e.subfov_class = p.subfov_class;
+    e.spot_mismatch = p.spot_mismatch;
     e.valid = p.active_sites > 0;
     if (!e.valid) {
       e.status = status::kNoSun;
@@ -69,6 +84,15 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
       std::ostringstream detail;
       detail << status::kAmbiguousAperture << ": the runner-up lattice placement fits the spot sizes only "
              << std::setprecision(3) << p.code_margin << " times worse (needs " << kMinApertureCodeMargin << ")";
+      e.status = detail.str();
+    } else if (impl_->model.meta.mismatch_threshold > 0.0 && p.spot_mismatch > impl_->model.meta.mismatch_threshold) {
+      // The estimate is kept (angles, sigma) but not trusted: the geometry
+      // it was solved through is not the unit's.
+      e.valid = false;
+      std::ostringstream detail;
+      detail << status::kModelMismatch << ": the spots lie " << std::setprecision(3) << p.spot_mismatch
+             << " times their calibrated residual from the model's geometry (threshold "
+             << impl_->model.meta.mismatch_threshold << "); calibrate the unit (dss calibrate-unit)";
       e.status = detail.str();
     }
   }

@@ -1,10 +1,12 @@
 #include "digital_sun_sensor/ros/bag_io.h"
 
+#include <geometry_msgs/Vector3Stamped.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <std_msgs/String.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <map>
 #include <sstream>
@@ -144,7 +146,34 @@ BagReadStats DatasetBagReader::forEach(const std::function<bool(const LabelledIm
       // Truth messages are small: index them by stamp, then stream the images.
       std::map<ros::Time, digital_sun_sensor::SunAngles> truths;
       for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(topics_.truth))) {
-        if (const auto t = instantiateSunAngles(m)) truths[t->header.stamp] = *t;
+        if (const auto t = instantiateSunAngles(m)) {
+          truths[t->header.stamp] = *t;
+        } else if (const auto v = m.instantiate<geometry_msgs::Vector3Stamped>()) {
+          // A sun vector (lab truth): in the sensor frame only, since a bag
+          // holds no transforms to resolve another.
+          if (!v->header.frame_id.empty() && v->header.frame_id != topics_.frame_id) {
+            if (stats.first_bad_truth.empty())
+              stats.first_bad_truth = "a sun vector on " + topics_.truth + " is in frame '" + v->header.frame_id +
+                                      "', not the sensor's '" + topics_.frame_id + "'";
+            ++stats.bad_truths;
+            continue;
+          }
+          const double norm = std::hypot(v->vector.x, v->vector.y, v->vector.z);
+          if (!(norm > 0.0) || !std::isfinite(norm)) {
+            if (stats.first_bad_truth.empty())
+              stats.first_bad_truth = "a sun vector on " + topics_.truth + " is zero or not finite";
+            ++stats.bad_truths;
+            continue;
+          }
+          digital_sun_sensor::SunAngles t;
+          t.header = v->header;
+          t.alpha = std::atan2(v->vector.x, v->vector.z);
+          t.beta = std::atan2(v->vector.y, v->vector.z);
+          t.subfov_class = digital_sun_sensor::SunAngles::SUBFOV_UNKNOWN;
+          t.valid = v->vector.z > 0.0;
+          t.source = "truth";
+          truths[t.header.stamp] = t;
+        }
       }
       std::uint64_t matched_here = 0;
       for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(topics_.image))) {

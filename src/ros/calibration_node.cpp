@@ -89,8 +89,12 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
     throw std::runtime_error(std::string("~inference_symmetry: ") + e.what());
   }
   EstimatorChoice choice = chooseEstimator(model_path_, calibration_path_, sensor, estimator_options);
-  if (const auto* sscnn = dynamic_cast<const SscnnEstimator*>(choice.estimator.get()))
+  if (const auto* sscnn = dynamic_cast<const SscnnEstimator*>(choice.estimator.get())) {
     inference_symmetry_ = sscnn->inferenceSymmetry();
+    mismatch_threshold_ = sscnn->mismatchThreshold();
+    const std::string unit = sscnn->unitCalibration();
+    unit_ = unit.empty() ? "nominal design" : unit;
+  }
   if (choice.estimator) {
     source_ = choice.estimator->source();
     estimator_ = std::make_unique<ScreenedEstimator>(std::move(choice.estimator), screen);
@@ -217,6 +221,15 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
       processing_ms_[latency_next_] = processing_ms;
     }
     latency_next_ = (latency_next_ + 1) % kLatencyWindow;
+    if (e.spot_mismatch > 0.0) {
+      // Flagged estimates count at their level: the median then tells
+      // whether most recent images fit the model's geometry.
+      if (spot_mismatch_.size() < kLatencyWindow)
+        spot_mismatch_.push_back(e.spot_mismatch);
+      else
+        spot_mismatch_[mismatch_next_] = e.spot_mismatch;
+      mismatch_next_ = (mismatch_next_ + 1) % kLatencyWindow;
+    }
   }
 }
 
@@ -271,6 +284,10 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "centroid fallback: " + estimator_problem_);
   } else if (received_ == 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "waiting for images");
+  } else if (mismatch_threshold_ > 0.0 && percentile(spot_mismatch_, 0.5) > mismatch_threshold_) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                 "model_mismatch: most recent spots do not fit the model's geometry (an uncalibrated or drifted "
+                 "unit): calibrate the unit (dss calibrate-unit)");
   } else {
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "estimating");
   }
@@ -278,6 +295,7 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("source", estimator_ ? source_ : "none");
   stat.add("model", model_path_.empty() ? "none" : model_path_);
   stat.add("inference symmetry", inference_symmetry_);
+  stat.add("unit calibration", unit_);
   stat.add("calibration (fallback)", calibration_path_.empty() ? "none" : calibration_path_);
   stat.add("input rate [Hz]", input_hz);
   stat.add("images received", received_);
@@ -289,6 +307,10 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("latency p50 [ms]", percentile(latency_ms_, 0.5));
   stat.add("latency p99 [ms]", percentile(latency_ms_, 0.99));
   stat.add("processing p50 [ms]", percentile(processing_ms_, 0.5));
+  if (!spot_mismatch_.empty()) {
+    stat.add("spot mismatch p50", percentile(spot_mismatch_, 0.5));
+    stat.add("spot mismatch threshold", mismatch_threshold_);
+  }
   std::ostringstream reasons;
   for (const auto& [reason, count] : invalid_reasons_)
     reasons << (reasons.tellp() ? ", " : "") << reason << ": " << count;

@@ -2,9 +2,13 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include <sstream>
 #include <algorithm>
+#include <sstream>
 #include <stdexcept>
+
+#include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
 
@@ -49,8 +53,33 @@ std::string describe(const BagReadStats& stats) {
   if (stats.unmatched_truths) os << "; " << stats.unmatched_truths << " truths without image";
   if (stats.bad_images)
     os << "; " << stats.bad_images << " unreadable images skipped (first: " << stats.first_bad_image << ")";
+  if (stats.bad_truths)
+    os << "; " << stats.bad_truths << " unusable truths skipped (first: " << stats.first_bad_truth << ")";
   return os.str();
 }
+
+namespace {
+
+// Sub-FOV class of the sensor's design at the angles: the quadrant, or the
+// aperture whose spot is nearest the detector centre.
+int designSubFovClass(const SensorConfig& config, double alpha_rad, double beta_rad) {
+  ImageTruth truth;
+  truth.alpha_rad = alpha_rad;
+  truth.beta_rad = beta_rad;
+  truth.sun = sunVectorFromAngles(alpha_rad, beta_rad);
+  const MaskGeometry design = MaskGeometry::nominalOf(config);
+  for (int k = 0; k < design.numApertures(); ++k)
+    if (const auto spot = design.spotPx(k, truth.sun)) {
+      SpotTruth s;
+      s.aperture_index = k;
+      s.x_px = spot->x();
+      s.y_px = spot->y();
+      truth.spots.push_back(s);
+    }
+  return subFovClass(config, truth);
+}
+
+}  // namespace
 
 TrainingData loadTrainingData(const std::vector<std::string>& bags, const std::optional<SensorConfig>& sensor,
                               const DatasetTopics& topics, std::uint64_t max_images,
@@ -67,23 +96,26 @@ TrainingData loadTrainingData(const std::vector<std::string>& bags, const std::o
   data.stats = reader.forEach([&](const LabelledImage& item) {
     try {
       checkImageFitsSensor(item, data.sensor);
-      data.samples.add(item.image, item.truth.alpha, item.truth.beta, item.truth.subfov_class);
+      // Truth given as a sun vector carries no class: the design's.
+      const int subfov_class = item.truth.subfov_class >= 0
+                                   ? item.truth.subfov_class
+                                   : designSubFovClass(data.sensor, item.truth.alpha, item.truth.beta);
+      data.samples.add(item.image, item.truth.alpha, item.truth.beta, subfov_class);
     } catch (const std::exception& e) {
       if (data.wrong_size_images++ == 0) data.first_wrong_size = e.what();
     }
     if (progress) progress(item.index + 1, total);
     return max_images == 0 || item.index + 1 < max_images;
   });
-  if (data.samples.size() == 0)
-    throw std::runtime_error("no usable image/truth pairs in the data: " + describe(data));
+  if (data.samples.size() == 0) throw std::runtime_error("no usable image/truth pairs in the data: " + describe(data));
   return data;
 }
 
 std::string describe(const TrainingData& data) {
   std::string text = describe(data.stats);
   if (data.wrong_size_images)
-    text += "; " + std::to_string(data.wrong_size_images) + " images that do not fit the sensor skipped (first: " +
-            data.first_wrong_size + ")";
+    text += "; " + std::to_string(data.wrong_size_images) +
+            " images that do not fit the sensor skipped (first: " + data.first_wrong_size + ")";
   return text;
 }
 

@@ -1,12 +1,7 @@
 // Fits the calibration model to labelled images (detected spots + the true sun
-// direction): Levenberg-Marquardt on the geometry, outlier rejection, then a
-// linear least-squares residual polynomial in angle space.
-//
-// Identifiability: only each aperture's centre in the sensor frame is seen.
-// A mask rotation about the boresight or a common offset equals moving every
-// aperture, so per-aperture corrections carry a weak prior (they take what the
-// common terms cannot explain); a single aperture has no rotation or tilt to
-// fit, and a tilt needs three apertures not on a line.
+// direction): Levenberg-Marquardt on the geometry (baseline/geometry_fit,
+// which says what the data can determine), outlier rejection, then a linear
+// least-squares residual polynomial in angle space.
 #pragma once
 
 #include <Eigen/Core>

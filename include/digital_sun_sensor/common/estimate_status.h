@@ -23,11 +23,12 @@ constexpr const char* kInconsistentSpots = "inconsistent_spots";   // baseline: 
 constexpr const char* kSpotAtEdge = "spot_at_edge";                // baseline: the spot is cut by the detector edge
 constexpr const char* kEstimatorError = "estimator_error";         // the estimator threw
 constexpr const char* kNoEstimator = "no_estimator";               // neither model nor calibration loaded
+constexpr const char* kModelMismatch = "model_mismatch";  // the spots do not fit the model's geometry (another unit)
 
 // Every code, for tests and documentation.
 constexpr const char* kAll[] = {
-    kNoSun,    kSaturated, kOutOfDistribution, kAmbiguousAperture, kOutsideFov,     kNotFinite,  kSunBehindSensor,
-    kBadImage, kNoMatch,   kInconsistentSpots, kSpotAtEdge,        kEstimatorError, kNoEstimator};
+    kNoSun,    kSaturated, kOutOfDistribution, kAmbiguousAperture, kOutsideFov,     kNotFinite,   kSunBehindSensor,
+    kBadImage, kNoMatch,   kInconsistentSpots, kSpotAtEdge,        kEstimatorError, kNoEstimator, kModelMismatch};
 
 // "code: detail".
 inline std::string withDetail(const char* code, const std::string& detail) { return std::string(code) + ": " + detail; }

@@ -18,6 +18,10 @@ struct SunEstimate {
   int subfov_class = -1;
   bool valid = false;
   std::string status;  // empty when valid, else a short reason ("no_sun", ...)
+  // Geometric-head models: the spots' residual against the model's geometry
+  // over its calibrated level (Prediction::spot_mismatch; ~1 on the sensor
+  // it was calibrated for); 0 where not measured.
+  double spot_mismatch = 0.0;
 };
 
 class SunEstimator {

@@ -9,10 +9,9 @@
 #include <torch/nn/module.h>
 #include <torch/nn/pimpl.h>
 
-#include <array>
 #include <cstdint>
-#include <vector>
 
+#include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/model/geometry_design.h"
 
 namespace dss {
@@ -36,6 +35,12 @@ class SensorGeometryImpl : public torch::nn::Module {
   torch::Tensor spotsUm(const torch::Tensor& angles_rad) const;
   // The same per group [B, G, 2].
   torch::Tensor groupSpotsUm(const torch::Tensor& angles_rad) const;
+  // The geometry in the baseline's terms (a pixel pitch of 1 um, so that its
+  // spots are in um), and back: height, offset, rotation, tilt and aperture
+  // positions (a unit calibration fits these; glass, groups and fluxes stay).
+  MaskGeometry maskGeometry() const;
+  // Throws std::invalid_argument for another aperture count or a height <= 0.
+  void setMaskGeometry(const MaskGeometry& geometry);
 
   torch::Tensor height_um;           // [1]
   torch::Tensor offset_um;           // [2] lateral offset of the mask
@@ -81,6 +86,11 @@ struct GeometricSolution {
   torch::Tensor spots_read;
   // [B] RMS distance of the read spots from the geometry's [um].
   torch::Tensor residual_um;
+  // [B] the read spots' weighted squared residual per degree of freedom,
+  // sum_g w_g |r_g|^2 / (2 spots - 2), 0 with fewer than two spots: in units
+  // of the spot noise per unit weight, which the model's mismatch scale
+  // calibrates (how far the spots are from any pattern the geometry makes).
+  torch::Tensor residual_per_dof;
 };
 
 // Solves each image's sun angles from its sites: positions site_um [N, 2]

@@ -30,6 +30,16 @@ struct ModelMetadata {
   // Predicted sigma scaled with the image's lit-site count (fitted by dss
   // calibrate-sigma with a constant sigma; inactive otherwise).
   SiteSigmaLaw sigma_site_law;
+  // Geometric head: the median weighted spot residual per degree of freedom
+  // on the images the model was last calibrated on (dss calibrate-sigma,
+  // dss calibrate-unit); 0: not measured. Prediction::spot_mismatch is in
+  // its units, and the estimator flags model_mismatch beyond
+  // mismatch_threshold of them.
+  double mismatch_level = 0.0;
+  double mismatch_threshold = 0.0;
+  // YAML map: the unit calibration the geometry holds (dss calibrate-unit:
+  // data, images, residuals, fitted parameters); "{}": the nominal design.
+  std::string unit_yaml = "{}";
   std::string sensor_name;
   std::string sensor_yaml;    // canonical config (toYaml) the model was made for
   std::string training_yaml;  // YAML map: data, schedule, wall time ("{}" untrained)

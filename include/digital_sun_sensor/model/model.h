@@ -34,6 +34,12 @@ struct Prediction {
   // (SscnnOutput::code_margin, the least over the mirror images); infinity
   // for other heads.
   double code_margin = std::numeric_limits<double>::infinity();
+  // Geometric head: how far the spots lie from the pattern the model's
+  // geometry makes, as their weighted residual per degree of freedom over
+  // the level calibrated on its sensor (ModelMetadata::mismatch_level): ~1
+  // there, large on a unit the geometry does not describe. 0 for other
+  // heads, with fewer than two spots read, or before calibration.
+  double spot_mismatch = 0.0;
 };
 
 struct Model {

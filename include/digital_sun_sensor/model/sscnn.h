@@ -38,6 +38,11 @@ struct SscnnOutput {
   // spots read [B] (0: the coarse angles were returned) and their RMS
   // distance from the geometry's spots [B] (um).
   torch::Tensor coarse_angles, spots_read, solve_residual_um;
+  // Geometric head: the solve's weighted residual per degree of freedom [B]
+  // (GeometricSolution::residual_per_dof), and its inputs, detached: per lit
+  // site its position [N, 2] (um from the detector centre, double), weight
+  // [N] (double) and image [N] (what a unit calibration fits the geometry to).
+  torch::Tensor solve_residual_per_dof, solve_site_um, solve_site_weight, solve_site_image;
   // Geometric head, internal: the output MLP's features [B, F] (detached),
   // read by the variance once the solve is known.
   torch::Tensor head_features;
@@ -75,6 +80,9 @@ class SscnnNetImpl : public torch::nn::Module {
   // The geometric head's geometry (null for other heads): what a unit
   // calibration fits.
   SensorGeometry geometry() const { return geometry_; }
+  // Geometric head: the angles it outputs for solved angles [B, 2]
+  // (normalized), the solve plus its learned smooth correction.
+  torch::Tensor correctSolvedAngles(const torch::Tensor& solved);
   std::int64_t parameterCount() const;
 
   // The variance head's level, the sigma interface (model/sigma.cpp): adds to

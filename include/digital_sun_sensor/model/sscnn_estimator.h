@@ -29,6 +29,11 @@ class SscnnEstimator : public SunEstimator {
   const SensorConfig& sensor() const override;
   // The mirror images averaged per image: "none", "flips" or "dihedral".
   std::string inferenceSymmetry() const;
+  // Geometric heads: the spot mismatch beyond which an estimate is flagged
+  // model_mismatch (0: not calibrated, never flagged), and the unit
+  // calibration the geometry holds (its data; empty: the nominal design).
+  double mismatchThreshold() const;
+  std::string unitCalibration() const;
   std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
 
  private:

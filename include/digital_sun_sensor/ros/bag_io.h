@@ -4,11 +4,8 @@
 // an interrupted run never leaves a bag that looks finished.
 #pragma once
 
-#include "digital_sun_sensor/sim/dataset_generator.h"
-
-#include <ros/time.h>
-
 #include <digital_sun_sensor/SunAngles.h>
+#include <ros/time.h>
 
 #include <functional>
 #include <memory>
@@ -16,6 +13,8 @@
 #include <stdexcept>
 #include <string>
 #include <vector>
+
+#include "digital_sun_sensor/sim/dataset_generator.h"
 
 namespace rosbag {
 class Bag;
@@ -35,8 +34,7 @@ class DatasetBagWriter {
  public:
   // Stamps: start + index / rate_hz. A fixed start keeps bags reproducible.
   DatasetBagWriter(const std::string& path, const SensorConfig& config, const std::string& info_yaml,
-                   double rate_hz = 10.0, const DatasetTopics& topics = {},
-                   ros::Time start = ros::Time(1700000000, 0));
+                   double rate_hz = 10.0, const DatasetTopics& topics = {}, ros::Time start = ros::Time(1700000000, 0));
   ~DatasetBagWriter();  // without commit(): removes the partial file
 
   void write(const DatasetItem& item);
@@ -73,6 +71,8 @@ struct BagReadStats {
   std::uint64_t unmatched_truths = 0;
   std::uint64_t bad_images = 0;  // wrong encoding or a data buffer that disagrees with the size
   std::string first_bad_image;   // why the first bad image was skipped
+  std::uint64_t bad_truths = 0;  // sun vectors in another frame, zero or not finite
+  std::string first_bad_truth;
 };
 
 // Reads image/truth pairs from one or more dataset bags. Opening checks every

@@ -45,6 +45,8 @@ class CalibrationNode {
   std::unique_ptr<SunEstimator> estimator_;  // null when neither model nor calibration could be used
   std::string source_, estimator_problem_, model_path_, calibration_path_;
   std::string inference_symmetry_ = "none";  // of the SSCNN in use
+  double mismatch_threshold_ = 0.0;          // its model_mismatch threshold (0: none)
+  std::string unit_ = "none";                // its unit calibration's data, or "nominal design"
   bool is_fallback_ = false;
   std::string sensor_name_, default_frame_id_, sun_frame_id_;
   bool publish_tf_ = true;
@@ -71,6 +73,10 @@ class CalibrationNode {
   std::vector<double> latency_ms_;     // image stamp -> publish, ring buffer
   std::vector<double> processing_ms_;  // dequeue -> publish, ring buffer
   std::size_t latency_next_ = 0;
+  // Recent spot mismatch (geometric-head models; 0 where not measured) and
+  // whether the estimate was flagged model_mismatch, ring buffers.
+  std::vector<double> spot_mismatch_;
+  std::size_t mismatch_next_ = 0;
   std::uint64_t received_at_last_diag_ = 0;
   ros::WallTime last_diag_time_;
 };

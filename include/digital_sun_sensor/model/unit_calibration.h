@@ -1,0 +1,73 @@
+// Calibration of a built unit (dss calibrate-unit) and the spot-mismatch
+// level that tells when a model's geometry does not describe the unit it
+// sees. Both need a model with a geometric head. Torch-free header.
+//
+// A unit calibration refits the head's geometry (mask height, offset,
+// rotation, tilt, each aperture's position: baseline/geometry_fit, which says
+// what the data can determine) to labelled images of the unit with the
+// network frozen: per image, the spots the network reads (its site weights,
+// associated through the geometry) against the spots the geometry puts at
+// the angles from which the head's learned correction gives the true ones,
+// weighed as the solve weighs them. The network, its correction and the
+// sigma stay as trained.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/train/training_set.h"
+
+namespace dss {
+
+struct Model;
+
+struct UnitCalibrationOptions {
+  double aperture_prior_um = 20.0;  // per-aperture position prior (gauge fixing)
+  double outlier_sigmas = 5.0;      // spots whose weighted residual exceeds this many robust sigmas are dropped
+  int max_iterations = 100;
+  std::size_t max_samples = 0;  // evenly spaced; 0: all
+};
+
+struct UnitCalibrationReport {
+  int images = 0;
+  int images_used = 0;  // with at least one whole spot read
+  int spots = 0;        // fitted
+  int outliers = 0;
+  int iterations = 0;
+  std::vector<std::string> free_parameters;
+  // Spots the network reads against the geometry's at the true angles
+  // (weighted RMS, um), and the model's angle error on these images (RMS per
+  // axis, deg), with the geometry before and after.
+  double spot_rms_um_before = 0.0, spot_rms_um_after = 0.0;
+  double angle_rms_deg_before = 0.0, angle_rms_deg_after = 0.0;
+  MaskGeometry before, after;  // um (pitch 1)
+
+  std::string toYaml() const;  // a YAML map, stored in the model (ModelMetadata::unit_yaml)
+};
+
+// Fits the unit's geometry into `model` from labelled images of the unit
+// (encoded with the model's input spec) and records the report, with
+// `data_description`, in the model's metadata. Throws std::invalid_argument
+// for a model without a geometric head, data of another input spec, or too
+// few spots to fit.
+UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const std::string& data_description,
+                                    const UnitCalibrationOptions& options = {});
+
+struct MismatchCalibration {
+  std::size_t samples = 0;        // with two or more spots read
+  double level = 0.0;             // median weighted residual per degree of freedom
+  double threshold = 0.0;         // in units of the level
+  double flagged_fraction = 0.0;  // of these samples beyond the threshold
+};
+
+// Sets the model's spot-mismatch level (ModelMetadata::mismatch_level: the
+// median weighted spot residual per degree of freedom on these images) and
+// its threshold (`threshold_factor` x the 99.5th percentile, in units of the
+// level). Throws std::invalid_argument without a geometric head or with no
+// image of two spots.
+MismatchCalibration calibrateSpotMismatch(Model& model, const TrainingSet& data, std::size_t max_samples,
+                                          double threshold_factor = 2.0);
+
+}  // namespace dss

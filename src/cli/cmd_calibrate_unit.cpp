@@ -1,0 +1,104 @@
+// dss calibrate-unit: fits a geometric-head model's geometry to labelled
+// images of one built unit with the network frozen (model/unit_calibration),
+// measures its spot-mismatch level where the model has none, and writes the
+// unit model.
+#include <iostream>
+#include <sstream>
+
+#include "commands.h"
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/unit_calibration.h"
+#include "digital_sun_sensor/ros/dataset_source.h"
+#include "digital_sun_sensor/sparse/threads.h"
+#include "progress.h"
+
+namespace dss::cli {
+
+int runCalibrateUnit(int argc, char** argv) {
+  const UnitCalibrationOptions defaults;
+  Args args(
+      "dss calibrate-unit",
+      "Fits the geometry of a model with a geometric head (mask height, offset, rotation, tilt, each aperture's "
+      "position) to labelled images of one built unit, with the network frozen: the spots the network reads against "
+      "those the geometry puts at the true angles, weighed as the head's solve weighs them; spots far off the fit "
+      "are left out. Writes the unit model atomically, recording the calibration (data, images, residuals, what "
+      "changed) in its metadata, and prints one JSON line. Use images of the unit alone (a turntable in the lab: "
+      "25 over the field of view are typically enough).",
+      {
+          {"model", "MODEL", "model file to calibrate (a family model, or a unit model to recalibrate)", "", true,
+           false},
+          {"data", "BAG", "labelled bag(s) of the unit", "", true, true},
+          {"out", "MODEL", "unit model file to write (may be --model)", "", true, false},
+          {"max-images", "N", "use at most N images, evenly spaced over all bags (0: all)", "0", false, false},
+          {"aperture-prior-um", "UM", "prior on each aperture's position (what the common terms cannot explain)",
+           std::to_string(defaults.aperture_prior_um), false, false},
+          {"image-topic", "TOPIC", "image topic in the bags", DatasetTopics{}.image, false, false},
+          {"truth-topic", "TOPIC",
+           "truth topic in the bags: SunAngles, or a geometry_msgs/Vector3Stamped sun vector in the sensor frame",
+           DatasetTopics{}.truth, false, false},
+      });
+  if (!args.parse(argc, argv, 2)) return 0;
+  UnitCalibrationOptions options;
+  options.aperture_prior_um = args.getDouble("aperture-prior-um");
+  if (!(options.aperture_prior_um > 0.0)) throw UsageError("dss calibrate-unit: --aperture-prior-um must be positive");
+  const std::int64_t max_images = args.getInt("max-images");
+  if (max_images < 0) throw UsageError("dss calibrate-unit: --max-images must be >= 0");
+  sparse::configureThreads(1, 2);
+  Model model = loadModel(args.get("model"));
+  if (!model.meta.arch.geometric_head)
+    throw UsageError("dss calibrate-unit: " + args.get("model") +
+                     " has no geometric head, so no geometry to fit; train one with dss train --head geometric, or "
+                     "calibrate the unit's baseline with dss calibrate");
+  const SensorConfig sensor = parseSensorConfig(model.meta.sensor_yaml, args.get("model") + " (sensor)");
+  DatasetTopics topics;
+  topics.image = args.get("image-topic");
+  topics.truth = args.get("truth-topic");
+  std::unique_ptr<Progress> reading;
+  const TrainingData data = loadTrainingData(args.all("data"), sensor, topics, static_cast<std::uint64_t>(max_images),
+                                             [&](std::uint64_t done, std::uint64_t total) {
+                                               if (!reading)
+                                                 reading =
+                                                     std::make_unique<Progress>("calibrate-unit: reading bags", total);
+                                               reading->update(done);
+                                             });
+  if (reading) reading->finish();
+  std::cerr << "read " << describe(data) << "\n";
+  std::string bags;
+  for (const auto& b : args.all("data")) bags += (bags.empty() ? "" : " ") + b;
+  const UnitCalibrationReport report =
+      calibrateUnit(model, data.samples, bags + " (" + std::to_string(data.samples.size()) + " images)", options);
+  std::optional<MismatchCalibration> mismatch;
+  if (!(model.meta.mismatch_level > 0.0)) {
+    try {
+      mismatch = calibrateSpotMismatch(model, data.samples, 0);
+    } catch (const std::invalid_argument& e) {
+      std::cerr << "spot mismatch level not measured: " << e.what() << "\n";
+    }
+  }
+  saveModel(model, args.get("out"));
+  std::cerr << "wrote " << args.get("out") << "\n";
+  const MaskGeometry& a = report.after;
+  const MaskGeometry& b = report.before;
+  std::ostringstream free;
+  for (std::size_t k = 0; k < report.free_parameters.size(); ++k)
+    free << (k ? ", " : "") << "\"" << report.free_parameters[k] << "\"";
+  std::cout << "{\"command\": \"calibrate-unit\", \"model\": \"" << args.get("out")
+            << "\", \"images\": " << report.images << ", \"images_used\": " << report.images_used
+            << ", \"spots\": " << report.spots << ", \"outliers\": " << report.outliers
+            << ", \"iterations\": " << report.iterations << ", \"free_parameters\": [" << free.str()
+            << "], \"spot_rms_um_before\": " << report.spot_rms_um_before
+            << ", \"spot_rms_um_after\": " << report.spot_rms_um_after
+            << ", \"angle_rms_deg_before\": " << report.angle_rms_deg_before
+            << ", \"angle_rms_deg_after\": " << report.angle_rms_deg_after
+            << ", \"height_change_um\": " << a.height_um - b.height_um << ", \"offset_change_um\": ["
+            << a.offset_x_um - b.offset_x_um << ", " << a.offset_y_um - b.offset_y_um
+            << "], \"rotation_change_deg\": " << radToDeg(a.rotation_rad - b.rotation_rad) << ", \"tilt_change_deg\": ["
+            << radToDeg(a.tilt_x_rad - b.tilt_x_rad) << ", " << radToDeg(a.tilt_y_rad - b.tilt_y_rad) << "]";
+  if (mismatch)
+    std::cout << ", \"mismatch_level\": " << mismatch->level << ", \"mismatch_threshold\": " << mismatch->threshold;
+  std::cout << "}" << std::endl;
+  return 0;
+}
+
+}  // namespace dss::cli

@@ -1,0 +1,297 @@
+#include "digital_sun_sensor/model/unit_calibration.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "digital_sun_sensor/baseline/geometry_fit.h"
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sparse_input.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "geometric_solve.h"
+
+namespace dss {
+namespace {
+
+constexpr std::size_t kSamplesPerPass = 64;
+
+// One image as the network reads it: its lit sites with the weights the
+// solve gives them, the model's estimate and the solve's residual.
+struct ImageRead {
+  const SparseSample* sample = nullptr;
+  std::vector<geometric::Site> sites;
+  Prediction prediction;
+  double residual_per_dof = 0.0;
+};
+
+void requireGeometricHead(const Model& model, const TrainingSet& data, const std::string& what) {
+  if (!model.meta.arch.geometric_head)
+    throw std::invalid_argument(what +
+                                ": the model's head is not geometric (train it with --head geometric): it has "
+                                "no geometry to fit");
+  const InputSpec& a = data.spec();
+  const InputSpec& b = model.meta.input;
+  if (a.width_px != b.width_px || a.height_px != b.height_px || a.max_code != b.max_code ||
+      a.threshold_dn != b.threshold_dn || a.black_level_dn != b.black_level_dn)
+    throw std::invalid_argument(what + ": the images were not encoded with the model's input spec");
+  if (data.size() == 0) throw std::invalid_argument(what + ": no images");
+}
+
+std::vector<const SparseSample*> evenlySpaced(const TrainingSet& data, std::size_t max_samples) {
+  const std::size_t n = max_samples ? std::min(data.size(), max_samples) : data.size();
+  std::vector<const SparseSample*> picked;
+  for (std::size_t i = 0; i < n; ++i) picked.push_back(&data.samples()[i * data.size() / n]);
+  return picked;
+}
+
+// The network over the samples (eval mode, no autograd), images without a
+// lit site left out.
+std::vector<ImageRead> readImages(const Model& model, const std::vector<const SparseSample*>& samples) {
+  torch::NoGradGuard no_grad;
+  model.net->eval();
+  std::vector<ImageRead> out;
+  for (std::size_t first = 0; first < samples.size(); first += kSamplesPerPass) {
+    const std::vector<const SparseSample*> pass(
+        samples.begin() + static_cast<std::ptrdiff_t>(first),
+        samples.begin() + static_cast<std::ptrdiff_t>(std::min(samples.size(), first + kSamplesPerPass)));
+    const auto input = encodeSamples(pass, model.meta.input);
+    const SscnnOutput result = model.net->forward(input);
+    const std::vector<Prediction> predictions = model.decode(result, *input.sites);
+    std::vector<ImageRead> reads(pass.size());
+    const auto xy = result.solve_site_um.contiguous();
+    const auto w = result.solve_site_weight.contiguous();
+    const auto image = result.solve_site_image.to(torch::kLong).contiguous();
+    const auto dof = result.solve_residual_per_dof.to(torch::kDouble).contiguous();
+    const auto xy_a = xy.accessor<double, 2>();
+    const auto w_a = w.accessor<double, 1>();
+    const auto image_a = image.accessor<std::int64_t, 1>();
+    for (std::int64_t i = 0; i < xy.size(0); ++i)
+      reads[static_cast<std::size_t>(image_a[i])].sites.push_back({Eigen::Vector2d(xy_a[i][0], xy_a[i][1]), w_a[i]});
+    for (std::size_t b = 0; b < pass.size(); ++b) {
+      reads[b].sample = pass[b];
+      reads[b].prediction = predictions[b];
+      reads[b].residual_per_dof = dof[static_cast<std::int64_t>(b)].item<double>();
+      if (predictions[b].active_sites > 0) out.push_back(std::move(reads[b]));
+    }
+  }
+  return out;
+}
+
+// Per image the solve's angles [rad] from which the head's learned
+// correction and the model's angle correction give the true angles
+// (fixed-point iteration: both corrections are small and smooth).
+std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector<ImageRead>& reads) {
+  torch::NoGradGuard no_grad;
+  const double s = model.meta.angle_scale_rad;
+  const auto n = static_cast<std::int64_t>(reads.size());
+  auto truth = torch::zeros({n, 2}, torch::kDouble);
+  for (std::int64_t i = 0; i < n; ++i) {
+    truth[i][0] = reads[static_cast<std::size_t>(i)].sample->alpha_rad / s;
+    truth[i][1] = reads[static_cast<std::size_t>(i)].sample->beta_rad / s;
+  }
+  auto target = truth.clone();
+  for (int it = 0; it < 4; ++it) {
+    auto output = model.net->correctSolvedAngles(target.to(torch::kFloat)).to(torch::kDouble).contiguous();
+    const auto o = output.accessor<double, 2>();
+    for (std::int64_t i = 0; i < n; ++i) {
+      const auto bias = model.meta.angle_correction.bias(o[i][0], o[i][1]);
+      output[i][0] = o[i][0] - bias[0];
+      output[i][1] = o[i][1] - bias[1];
+    }
+    target += truth - output;
+  }
+  std::vector<Eigen::Vector2d> out(reads.size());
+  const auto t = target.accessor<double, 2>();
+  for (std::int64_t i = 0; i < n; ++i) out[static_cast<std::size_t>(i)] = Eigen::Vector2d(t[i][0], t[i][1]) * s;
+  return out;
+}
+
+geometric::Options solveOptions(const Model& model) {
+  geometric::Options o;
+  o.gate_um = model.meta.arch.geometric_gate_um;
+  o.pitch_um = model.meta.arch.detector_pitch_um;
+  o.width_px = model.meta.arch.detector_width_px;
+  o.height_px = model.meta.arch.detector_height_px;
+  return o;
+}
+
+// The whole spots each image shows at its target angles through `design`,
+// weighted as the solve weighs them (relative to `weight_unit`).
+std::vector<GeometryObservation> observe(const geometric::Design& design, const std::vector<ImageRead>& reads,
+                                         const std::vector<Eigen::Vector2d>& targets, const geometric::Options& options,
+                                         double weight_unit) {
+  std::vector<std::vector<int>> members(static_cast<std::size_t>(design.groups));
+  std::vector<std::vector<double>> fluxes(members.size());
+  for (std::size_t k = 0; k < design.group.size(); ++k) {
+    members[static_cast<std::size_t>(design.group[k])].push_back(static_cast<int>(k));
+    fluxes[static_cast<std::size_t>(design.group[k])].push_back(design.flux[k]);
+  }
+  std::vector<GeometryObservation> out;
+  for (std::size_t i = 0; i < reads.size(); ++i) {
+    const geometric::Reading r = geometric::readSpots(design, reads[i].sites, targets[i], options.gate_um, options);
+    const std::vector<double> w = geometric::solveWeights(r, options);
+    for (std::size_t g = 0; g < w.size(); ++g) {
+      if (!(w[g] > 0.0) || r.cut[g]) continue;
+      GeometryObservation o;
+      o.sample = static_cast<int>(i);
+      o.sun = sunVectorFromAngles(targets[i].x(), targets[i].y());
+      o.apertures = members[g];
+      if (members[g].size() > 1) o.fluxes = fluxes[g];
+      o.measured_px = r.centroid[g];
+      o.weight = w[g] / weight_unit;
+      out.push_back(std::move(o));
+    }
+  }
+  return out;
+}
+
+// Per observation sqrt(weight) x residual length [um at unit weight].
+std::vector<double> weightedNorms(const GeometryFit& fit, const Eigen::VectorXd& p,
+                                  const std::vector<GeometryObservation>& obs) {
+  std::vector<double> norms = fit.residualNorms(p, obs);
+  for (std::size_t k = 0; k < obs.size(); ++k) norms[k] *= std::sqrt(obs[k].weight);
+  return norms;
+}
+
+double weightedRms(const GeometryFit& fit, const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) {
+  double sum = 0.0, weight = 0.0;
+  const std::vector<double> norms = fit.residualNorms(p, obs);
+  for (std::size_t k = 0; k < obs.size(); ++k)
+    if (std::isfinite(norms[k])) sum += obs[k].weight * norms[k] * norms[k], weight += obs[k].weight;
+  return weight > 0.0 ? std::sqrt(sum / weight) : 0.0;
+}
+
+double angleRmsDeg(const std::vector<ImageRead>& reads) {
+  double sum = 0.0;
+  for (const auto& r : reads) {
+    const double da = r.prediction.alpha_rad - r.sample->alpha_rad, db = r.prediction.beta_rad - r.sample->beta_rad;
+    sum += da * da + db * db;
+  }
+  return reads.empty() ? 0.0 : radToDeg(std::sqrt(sum / (2.0 * static_cast<double>(reads.size()))));
+}
+
+}  // namespace
+
+std::string UnitCalibrationReport::toYaml() const {
+  YAML::Emitter out;
+  out << YAML::BeginMap;
+  out << YAML::Key << "images" << YAML::Value << images << YAML::Key << "images_used" << YAML::Value << images_used;
+  out << YAML::Key << "spots" << YAML::Value << spots << YAML::Key << "outliers" << YAML::Value << outliers;
+  out << YAML::Key << "iterations" << YAML::Value << iterations;
+  out << YAML::Key << "free_parameters" << YAML::Value << YAML::Flow << free_parameters;
+  out << YAML::Key << "spot_rms_um_before" << YAML::Value << spot_rms_um_before;
+  out << YAML::Key << "spot_rms_um_after" << YAML::Value << spot_rms_um_after;
+  out << YAML::Key << "angle_rms_deg_before" << YAML::Value << angle_rms_deg_before;
+  out << YAML::Key << "angle_rms_deg_after" << YAML::Value << angle_rms_deg_after;
+  // What the fit changed, in the geometry's own terms.
+  double shift2 = 0.0;
+  for (std::size_t k = 0; k < after.apertures_um.size(); ++k)
+    shift2 += (after.apertures_um[k] - before.apertures_um[k]).squaredNorm();
+  out << YAML::Key << "change" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "height_um" << YAML::Value << after.height_um - before.height_um;
+  out << YAML::Key << "offset_um" << YAML::Value << YAML::Flow << YAML::BeginSeq
+      << after.offset_x_um - before.offset_x_um << after.offset_y_um - before.offset_y_um << YAML::EndSeq;
+  out << YAML::Key << "rotation_deg" << YAML::Value << radToDeg(after.rotation_rad - before.rotation_rad);
+  out << YAML::Key << "tilt_deg" << YAML::Value << YAML::Flow << YAML::BeginSeq
+      << radToDeg(after.tilt_x_rad - before.tilt_x_rad) << radToDeg(after.tilt_y_rad - before.tilt_y_rad)
+      << YAML::EndSeq;
+  out << YAML::Key << "aperture_shift_rms_um" << YAML::Value
+      << (after.apertures_um.empty() ? 0.0 : std::sqrt(shift2 / static_cast<double>(after.apertures_um.size())));
+  out << YAML::EndMap;
+  out << YAML::EndMap;
+  return out.c_str();
+}
+
+UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const std::string& data_description,
+                                    const UnitCalibrationOptions& options) {
+  const std::string what = "unit calibration";
+  requireGeometricHead(model, data, what);
+  SensorGeometryImpl& geometry = *model.net->geometry();
+  UnitCalibrationReport report;
+  const std::vector<const SparseSample*> samples = evenlySpaced(data, options.max_samples);
+  report.images = static_cast<int>(samples.size());
+  const std::vector<ImageRead> reads = readImages(model, samples);
+  if (reads.empty()) throw std::invalid_argument(what + ": no image has a lit pixel");
+  report.angle_rms_deg_before = angleRmsDeg(reads);
+  const std::vector<Eigen::Vector2d> targets = solvedTargets(model, reads);
+  const geometric::Options solve = solveOptions(model);
+  const geometric::Design design = geometric::designOf(geometry);
+  report.before = design.mask;
+
+  // Weights relative to the median spot's; the spot noise at that weight
+  // scales the aperture prior against the data (as the baseline's fit).
+  std::vector<GeometryObservation> obs = observe(design, reads, targets, solve, 1.0);
+  if (obs.size() < 3)
+    throw std::invalid_argument(what + ": only " + std::to_string(obs.size()) +
+                                " whole spots could be read in the images (need at least 3)");
+  std::vector<double> weights;
+  for (const auto& o : obs) weights.push_back(o.weight);
+  std::nth_element(weights.begin(), weights.begin() + static_cast<std::ptrdiff_t>(weights.size() / 2), weights.end());
+  const double weight_unit = weights[weights.size() / 2];
+  for (auto& o : obs) o.weight /= weight_unit;
+  const double prior2 = options.aperture_prior_um * options.aperture_prior_um;
+
+  GeometryFit first(design.mask, 0.0);
+  Eigen::VectorXd p = first.start();
+  report.spot_rms_um_before = weightedRms(first, p, obs);
+  // First pass: the prior scaled by the design's residuals (large: the unit
+  // is not the design), then re-read through the fitted geometry, outliers
+  // (debris, ghosts on a spot) dropped, and refitted with the prior scaled
+  // by the fitted residuals.
+  const double design_sigma = robustSigma(weightedNorms(first, p, obs));
+  const GeometryFit coarse(design.mask, design_sigma * design_sigma / prior2);
+  report.iterations += coarse.run(p, obs, options.max_iterations);
+  geometric::Design fitted = design;
+  fitted.mask = coarse.apply(p);
+  obs = observe(fitted, reads, targets, solve, weight_unit);
+  const std::vector<double> norms = weightedNorms(coarse, p, obs);
+  const double sigma = std::max(robustSigma(norms), 1e-9);
+  std::vector<GeometryObservation> inliers;
+  for (std::size_t k = 0; k < obs.size(); ++k)
+    if (norms[k] <= options.outlier_sigmas * sigma) inliers.push_back(obs[k]);
+  report.outliers = static_cast<int>(obs.size() - inliers.size());
+  if (inliers.size() < 3) throw std::invalid_argument(what + ": too few consistent spots in the images");
+  const GeometryFit fine(design.mask, sigma * sigma / prior2);
+  report.iterations += fine.run(p, inliers, options.max_iterations);
+  report.free_parameters = fine.freeParameters();
+  report.spots = static_cast<int>(inliers.size());
+  std::vector<bool> used(reads.size(), false);
+  for (const auto& o : inliers) used[static_cast<std::size_t>(o.sample)] = true;
+  report.images_used = static_cast<int>(std::count(used.begin(), used.end(), true));
+  report.spot_rms_um_after = weightedRms(fine, p, inliers);
+
+  geometry.setMaskGeometry(fine.apply(p));
+  report.after = geometry.maskGeometry();
+  report.angle_rms_deg_after = angleRmsDeg(readImages(model, samples));
+  YAML::Node record = YAML::Load(report.toYaml());
+  record["data"] = data_description;
+  model.meta.unit_yaml = YAML::Dump(record);
+  return report;
+}
+
+MismatchCalibration calibrateSpotMismatch(Model& model, const TrainingSet& data, std::size_t max_samples,
+                                          double threshold_factor) {
+  const std::string what = "spot mismatch calibration";
+  requireGeometricHead(model, data, what);
+  std::vector<double> values;
+  for (const ImageRead& r : readImages(model, evenlySpaced(data, max_samples)))
+    if (r.residual_per_dof > 0.0) values.push_back(r.residual_per_dof);
+  if (values.empty()) throw std::invalid_argument(what + ": no image shows two spots");
+  std::sort(values.begin(), values.end());
+  MismatchCalibration c;
+  c.samples = values.size();
+  c.level = values[values.size() / 2];
+  const std::size_t high = std::min(values.size() - 1, static_cast<std::size_t>(0.995 * values.size()));
+  c.threshold = threshold_factor * values[high] / c.level;
+  std::size_t flagged = 0;
+  for (double v : values) flagged += v / c.level > c.threshold;
+  c.flagged_fraction = static_cast<double>(flagged) / static_cast<double>(values.size());
+  model.meta.mismatch_level = c.level;
+  model.meta.mismatch_threshold = c.threshold;
+  return c;
+}
+
+}  // namespace dss
