@@ -18,7 +18,7 @@ PACKAGES=(
   libtf2-ros-dev tf2-tools libtf2-geometry-msgs-dev libcv-bridge-dev librosbag-dev
   libdiagnostic-updater-dev libdiagnostic-msgs-dev libnodelet-dev libnodeletlib-dev
   libnodeletlib-tools pluginlib-dev libsensor-msgs-dev libgeometry-msgs-dev
-  libstd-msgs-dev ros-message-generation ros-message-runtime
+  libstd-msgs-dev libstd-srvs-dev ros-message-generation ros-message-runtime
   # numerics
   libtorch-dev libopenblas0-pthread libopenblas-pthread-dev libeigen3-dev libfftw3-dev
   # images, config, tests

@@ -109,54 +109,62 @@ double GeometryFit::cost(const Eigen::VectorXd& p, const std::vector<GeometryObs
   return sum;
 }
 
+void GeometryFit::normalEquations(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs,
+                                  Eigen::MatrixXd& a, Eigen::VectorXd& b) const {
+  const auto n = static_cast<Eigen::Index>(p.size());
+  a = Eigen::MatrixXd::Zero(n, n);
+  b = Eigen::VectorXd::Zero(n);
+  MaskGeometry g = apply(p);  // probed in place for the Jacobian
+  Eigen::Vector2d q, qp, qm;
+  std::vector<int> index;
+  for (const auto& o : obs) {
+    if (!predict(g, o, q)) continue;
+    const Eigen::Vector2d r = o.measured_px - q;
+    // Sparse row: the globals and the offsets of this spot's apertures.
+    index.clear();
+    for (int k = 0; k < kNumGlobals; ++k) index.push_back(k);
+    for (int aperture : o.apertures)
+      for (int axis = 0; axis < 2; ++axis) index.push_back(kNumGlobals + 2 * aperture + axis);
+    Eigen::Matrix<double, 2, Eigen::Dynamic> jac(2, static_cast<Eigen::Index>(index.size()));
+    for (std::size_t k = 0; k < index.size(); ++k) {
+      const auto col = static_cast<Eigen::Index>(k);
+      const double step = index[k] < kNumGlobals ? kStep[index[k]] : kApertureStepUm;
+      if (!free_[static_cast<std::size_t>(index[k])]) {
+        jac.col(col).setZero();
+        continue;
+      }
+      double& field = parameterRef(g, index[k]);
+      const double saved = field;
+      field = saved + step;
+      const bool plus = predict(g, o, qp);
+      field = saved - step;
+      const bool minus = predict(g, o, qm);
+      field = saved;
+      jac.col(col) = plus && minus ? Eigen::Vector2d((qp - qm) / (2.0 * step)) : Eigen::Vector2d::Zero();
+    }
+    for (std::size_t u = 0; u < index.size(); ++u) {
+      const auto cu = static_cast<Eigen::Index>(u);
+      b[index[u]] += o.weight * jac.col(cu).dot(r);
+      for (std::size_t v = 0; v < index.size(); ++v)
+        a(index[u], index[v]) += o.weight * jac.col(cu).dot(jac.col(static_cast<Eigen::Index>(v)));
+    }
+  }
+  for (Eigen::Index k = kNumGlobals; k < n; ++k) {
+    a(k, k) += prior_weight_;
+    b[k] -= prior_weight_ * p[k];
+  }
+  for (Eigen::Index k = 0; k < n; ++k)
+    if (!free_[static_cast<std::size_t>(k)]) a(k, k) = 1.0, b[k] = 0.0;
+}
+
 int GeometryFit::run(Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs, int max_iterations) const {
   const auto n = static_cast<Eigen::Index>(p.size());
   double current = cost(p, obs), lambda = 1e-4;
   int it = 0;
-  std::vector<int> index;
+  Eigen::MatrixXd a;
+  Eigen::VectorXd b;
   for (; it < max_iterations; ++it) {
-    Eigen::MatrixXd a = Eigen::MatrixXd::Zero(n, n);
-    Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
-    MaskGeometry g = apply(p);  // probed in place for the Jacobian
-    Eigen::Vector2d q, qp, qm;
-    for (const auto& o : obs) {
-      if (!predict(g, o, q)) continue;
-      const Eigen::Vector2d r = o.measured_px - q;
-      // Sparse row: the globals and the offsets of this spot's apertures.
-      index.clear();
-      for (int k = 0; k < kNumGlobals; ++k) index.push_back(k);
-      for (int aperture : o.apertures)
-        for (int axis = 0; axis < 2; ++axis) index.push_back(kNumGlobals + 2 * aperture + axis);
-      Eigen::Matrix<double, 2, Eigen::Dynamic> jac(2, static_cast<Eigen::Index>(index.size()));
-      for (std::size_t k = 0; k < index.size(); ++k) {
-        const auto col = static_cast<Eigen::Index>(k);
-        const double step = index[k] < kNumGlobals ? kStep[index[k]] : kApertureStepUm;
-        if (!free_[static_cast<std::size_t>(index[k])]) {
-          jac.col(col).setZero();
-          continue;
-        }
-        double& field = parameterRef(g, index[k]);
-        const double saved = field;
-        field = saved + step;
-        const bool plus = predict(g, o, qp);
-        field = saved - step;
-        const bool minus = predict(g, o, qm);
-        field = saved;
-        jac.col(col) = plus && minus ? Eigen::Vector2d((qp - qm) / (2.0 * step)) : Eigen::Vector2d::Zero();
-      }
-      for (std::size_t u = 0; u < index.size(); ++u) {
-        const auto cu = static_cast<Eigen::Index>(u);
-        b[index[u]] += o.weight * jac.col(cu).dot(r);
-        for (std::size_t v = 0; v < index.size(); ++v)
-          a(index[u], index[v]) += o.weight * jac.col(cu).dot(jac.col(static_cast<Eigen::Index>(v)));
-      }
-    }
-    for (Eigen::Index k = kNumGlobals; k < n; ++k) {
-      a(k, k) += prior_weight_;
-      b[k] -= prior_weight_ * p[k];
-    }
-    for (Eigen::Index k = 0; k < n; ++k)
-      if (!free_[static_cast<std::size_t>(k)]) a(k, k) = 1.0, b[k] = 0.0;
+    normalEquations(p, obs, a, b);
     bool accepted = false;
     Eigen::VectorXd step;
     for (int attempt = 0; attempt < 10 && !accepted; ++attempt) {
@@ -180,6 +188,26 @@ int GeometryFit::run(Eigen::VectorXd& p, const std::vector<GeometryObservation>&
     if (largest < 1e-3) break;
   }
   return it + 1;
+}
+
+std::array<double, 6> GeometryFit::standardErrors(const Eigen::VectorXd& p,
+                                                  const std::vector<GeometryObservation>& obs) const {
+  Eigen::MatrixXd a;
+  Eigen::VectorXd b;
+  normalEquations(p, obs, a, b);
+  const MaskGeometry g = apply(p);
+  double chi2 = 0.0;
+  Eigen::Vector2d q;
+  for (const auto& o : obs)
+    if (predict(g, o, q)) chi2 += o.weight * (o.measured_px - q).squaredNorm();
+  const auto free = static_cast<double>(std::count(free_.begin(), free_.end(), true));
+  const double dof = std::max(1.0, 2.0 * static_cast<double>(obs.size()) - free);
+  const Eigen::MatrixXd covariance = a.ldlt().solve(Eigen::MatrixXd::Identity(a.rows(), a.cols())) * (chi2 / dof);
+  std::array<double, 6> out{};
+  for (int k = 0; k < kNumGlobals; ++k)
+    if (free_[static_cast<std::size_t>(k)])
+      out[static_cast<std::size_t>(k)] = std::sqrt(std::max(0.0, covariance(k, k)));
+  return out;
 }
 
 std::vector<double> GeometryFit::residualNorms(const Eigen::VectorXd& p,

@@ -34,6 +34,28 @@ std::string SscnnEstimator::inferenceSymmetry() const {
   return inferenceSymmetryName(impl_->model.meta.inference_symmetry);
 }
 
+bool SscnnEstimator::hasGeometry() const { return impl_->model.meta.arch.geometric_head; }
+
+std::vector<UnitImage> SscnnEstimator::readUnit(const std::vector<cv::Mat>& images,
+                                                const std::vector<std::array<double, 2>>& reference_rad) const {
+  return readUnitImages(impl_->model, images, reference_rad);
+}
+
+UnitCalibrationReport SscnnEstimator::recalibrate(UnitRecalibrator& recalibrator) {
+  return recalibrator.refit(impl_->model);
+}
+
+MaskGeometry SscnnEstimator::geometry() const {
+  if (!hasGeometry()) throw std::invalid_argument("the model has no geometric head");
+  return impl_->model.net->geometry()->maskGeometry();
+}
+
+void SscnnEstimator::saveModel(const std::string& path, const std::string& record) const {
+  Model copy = impl_->model;  // the record goes to the file only
+  copy.meta.unit_yaml = record;
+  dss::saveModel(copy, path);
+}
+
 double SscnnEstimator::mismatchThreshold() const { return impl_->model.meta.mismatch_threshold; }
 
 std::string SscnnEstimator::unitCalibration() const {

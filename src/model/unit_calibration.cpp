@@ -3,6 +3,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <stdexcept>
 
@@ -21,8 +22,7 @@ constexpr std::size_t kSamplesPerPass = 64;
 // One image as the network reads it: its lit sites with the weights the
 // solve gives them, the model's estimate and the solve's residual.
 struct ImageRead {
-  const SparseSample* sample = nullptr;
-  std::vector<geometric::Site> sites;
+  UnitImage image;  // sites and truth
   Prediction prediction;
   double residual_per_dof = 0.0;
 };
@@ -47,20 +47,20 @@ std::vector<const SparseSample*> evenlySpaced(const TrainingSet& data, std::size
   return picked;
 }
 
-// The network over the samples (eval mode, no autograd), images without a
-// lit site left out.
-std::vector<ImageRead> readImages(const Model& model, const std::vector<const SparseSample*>& samples) {
+// The network over `count` inputs (eval mode, no autograd) in passes;
+// `encode(first, last)` encodes a pass, `truth(i)` gives input i's angles.
+// Images without a lit site are left out.
+template <typename Encode, typename Truth>
+std::vector<ImageRead> readImages(const Model& model, std::size_t count, const Encode& encode, const Truth& truth) {
   torch::NoGradGuard no_grad;
   model.net->eval();
   std::vector<ImageRead> out;
-  for (std::size_t first = 0; first < samples.size(); first += kSamplesPerPass) {
-    const std::vector<const SparseSample*> pass(
-        samples.begin() + static_cast<std::ptrdiff_t>(first),
-        samples.begin() + static_cast<std::ptrdiff_t>(std::min(samples.size(), first + kSamplesPerPass)));
-    const auto input = encodeSamples(pass, model.meta.input);
+  for (std::size_t first = 0; first < count; first += kSamplesPerPass) {
+    const std::size_t last = std::min(count, first + kSamplesPerPass);
+    const sparse::SparseTensor input = encode(first, last);
     const SscnnOutput result = model.net->forward(input);
     const std::vector<Prediction> predictions = model.decode(result, *input.sites);
-    std::vector<ImageRead> reads(pass.size());
+    std::vector<ImageRead> reads(last - first);
     const auto xy = result.solve_site_um.contiguous();
     const auto w = result.solve_site_weight.contiguous();
     const auto image = result.solve_site_image.to(torch::kLong).contiguous();
@@ -68,10 +68,15 @@ std::vector<ImageRead> readImages(const Model& model, const std::vector<const Sp
     const auto xy_a = xy.accessor<double, 2>();
     const auto w_a = w.accessor<double, 1>();
     const auto image_a = image.accessor<std::int64_t, 1>();
-    for (std::int64_t i = 0; i < xy.size(0); ++i)
-      reads[static_cast<std::size_t>(image_a[i])].sites.push_back({Eigen::Vector2d(xy_a[i][0], xy_a[i][1]), w_a[i]});
-    for (std::size_t b = 0; b < pass.size(); ++b) {
-      reads[b].sample = pass[b];
+    for (std::int64_t i = 0; i < xy.size(0); ++i) {
+      UnitImage& u = reads[static_cast<std::size_t>(image_a[i])].image;
+      u.site_um.emplace_back(xy_a[i][0], xy_a[i][1]);
+      u.site_weight.push_back(w_a[i]);
+    }
+    for (std::size_t b = 0; b < reads.size(); ++b) {
+      const std::array<double, 2> angles = truth(first + b);
+      reads[b].image.alpha_rad = angles[0];
+      reads[b].image.beta_rad = angles[1];
       reads[b].prediction = predictions[b];
       reads[b].residual_per_dof = dof[static_cast<std::int64_t>(b)].item<double>();
       if (predictions[b].active_sites > 0) out.push_back(std::move(reads[b]));
@@ -80,17 +85,30 @@ std::vector<ImageRead> readImages(const Model& model, const std::vector<const Sp
   return out;
 }
 
+std::vector<ImageRead> readSamples(const Model& model, const std::vector<const SparseSample*>& samples) {
+  return readImages(
+      model, samples.size(),
+      [&](std::size_t first, std::size_t last) {
+        return encodeSamples(
+            {samples.begin() + static_cast<std::ptrdiff_t>(first), samples.begin() + static_cast<std::ptrdiff_t>(last)},
+            model.meta.input);
+      },
+      [&](std::size_t i) {
+        return std::array<double, 2>{samples[i]->alpha_rad, samples[i]->beta_rad};
+      });
+}
+
 // Per image the solve's angles [rad] from which the head's learned
 // correction and the model's angle correction give the true angles
 // (fixed-point iteration: both corrections are small and smooth).
-std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector<ImageRead>& reads) {
+std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector<UnitImage>& images) {
   torch::NoGradGuard no_grad;
   const double s = model.meta.angle_scale_rad;
-  const auto n = static_cast<std::int64_t>(reads.size());
+  const auto n = static_cast<std::int64_t>(images.size());
   auto truth = torch::zeros({n, 2}, torch::kDouble);
   for (std::int64_t i = 0; i < n; ++i) {
-    truth[i][0] = reads[static_cast<std::size_t>(i)].sample->alpha_rad / s;
-    truth[i][1] = reads[static_cast<std::size_t>(i)].sample->beta_rad / s;
+    truth[i][0] = images[static_cast<std::size_t>(i)].alpha_rad / s;
+    truth[i][1] = images[static_cast<std::size_t>(i)].beta_rad / s;
   }
   auto target = truth.clone();
   for (int it = 0; it < 4; ++it) {
@@ -103,7 +121,7 @@ std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector
     }
     target += truth - output;
   }
-  std::vector<Eigen::Vector2d> out(reads.size());
+  std::vector<Eigen::Vector2d> out(images.size());
   const auto t = target.accessor<double, 2>();
   for (std::int64_t i = 0; i < n; ++i) out[static_cast<std::size_t>(i)] = Eigen::Vector2d(t[i][0], t[i][1]) * s;
   return out;
@@ -120,7 +138,7 @@ geometric::Options solveOptions(const Model& model) {
 
 // The whole spots each image shows at its target angles through `design`,
 // weighted as the solve weighs them (relative to `weight_unit`).
-std::vector<GeometryObservation> observe(const geometric::Design& design, const std::vector<ImageRead>& reads,
+std::vector<GeometryObservation> observe(const geometric::Design& design, const std::vector<UnitImage>& images,
                                          const std::vector<Eigen::Vector2d>& targets, const geometric::Options& options,
                                          double weight_unit) {
   std::vector<std::vector<int>> members(static_cast<std::size_t>(design.groups));
@@ -130,8 +148,12 @@ std::vector<GeometryObservation> observe(const geometric::Design& design, const 
     fluxes[static_cast<std::size_t>(design.group[k])].push_back(design.flux[k]);
   }
   std::vector<GeometryObservation> out;
-  for (std::size_t i = 0; i < reads.size(); ++i) {
-    const geometric::Reading r = geometric::readSpots(design, reads[i].sites, targets[i], options.gate_um, options);
+  std::vector<geometric::Site> sites;
+  for (std::size_t i = 0; i < images.size(); ++i) {
+    sites.clear();
+    for (std::size_t k = 0; k < images[i].site_um.size(); ++k)
+      sites.push_back({images[i].site_um[k], images[i].site_weight[k]});
+    const geometric::Reading r = geometric::readSpots(design, sites, targets[i], options.gate_um, options);
     const std::vector<double> w = geometric::solveWeights(r, options);
     for (std::size_t g = 0; g < w.size(); ++g) {
       if (!(w[g] > 0.0) || r.cut[g]) continue;
@@ -167,7 +189,7 @@ double weightedRms(const GeometryFit& fit, const Eigen::VectorXd& p, const std::
 double angleRmsDeg(const std::vector<ImageRead>& reads) {
   double sum = 0.0;
   for (const auto& r : reads) {
-    const double da = r.prediction.alpha_rad - r.sample->alpha_rad, db = r.prediction.beta_rad - r.sample->beta_rad;
+    const double da = r.prediction.alpha_rad - r.image.alpha_rad, db = r.prediction.beta_rad - r.image.beta_rad;
     sum += da * da + db * db;
   }
   return reads.empty() ? 0.0 : radToDeg(std::sqrt(sum / (2.0 * static_cast<double>(reads.size()))));
@@ -205,25 +227,21 @@ std::string UnitCalibrationReport::toYaml() const {
   return out.c_str();
 }
 
-UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const std::string& data_description,
-                                    const UnitCalibrationOptions& options) {
+UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>& images,
+                                      const UnitCalibrationOptions& options) {
   const std::string what = "unit calibration";
-  requireGeometricHead(model, data, what);
+  if (!model.meta.arch.geometric_head) throw std::invalid_argument(what + ": the model's head is not geometric");
   SensorGeometryImpl& geometry = *model.net->geometry();
   UnitCalibrationReport report;
-  const std::vector<const SparseSample*> samples = evenlySpaced(data, options.max_samples);
-  report.images = static_cast<int>(samples.size());
-  const std::vector<ImageRead> reads = readImages(model, samples);
-  if (reads.empty()) throw std::invalid_argument(what + ": no image has a lit pixel");
-  report.angle_rms_deg_before = angleRmsDeg(reads);
-  const std::vector<Eigen::Vector2d> targets = solvedTargets(model, reads);
+  report.images = static_cast<int>(images.size());
+  const std::vector<Eigen::Vector2d> targets = solvedTargets(model, images);
   const geometric::Options solve = solveOptions(model);
   const geometric::Design design = geometric::designOf(geometry);
   report.before = design.mask;
 
   // Weights relative to the median spot's; the spot noise at that weight
   // scales the aperture prior against the data (as the baseline's fit).
-  std::vector<GeometryObservation> obs = observe(design, reads, targets, solve, 1.0);
+  std::vector<GeometryObservation> obs = observe(design, images, targets, solve, 1.0);
   if (obs.size() < 3)
     throw std::invalid_argument(what + ": only " + std::to_string(obs.size()) +
                                 " whole spots could be read in the images (need at least 3)");
@@ -237,16 +255,16 @@ UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const
   GeometryFit first(design.mask, 0.0);
   Eigen::VectorXd p = first.start();
   report.spot_rms_um_before = weightedRms(first, p, obs);
-  // First pass: the prior scaled by the design's residuals (large: the unit
-  // is not the design), then re-read through the fitted geometry, outliers
-  // (debris, ghosts on a spot) dropped, and refitted with the prior scaled
-  // by the fitted residuals.
-  const double design_sigma = robustSigma(weightedNorms(first, p, obs));
-  const GeometryFit coarse(design.mask, design_sigma * design_sigma / prior2);
+  // First pass: the prior scaled by the starting geometry's residuals
+  // (large: the unit is not that geometry), then re-read through the fitted
+  // geometry, outliers (debris, ghosts on a spot, wrong references) dropped,
+  // and refitted with the prior scaled by the fitted residuals.
+  const double start_sigma = robustSigma(weightedNorms(first, p, obs));
+  const GeometryFit coarse(design.mask, start_sigma * start_sigma / prior2);
   report.iterations += coarse.run(p, obs, options.max_iterations);
   geometric::Design fitted = design;
   fitted.mask = coarse.apply(p);
-  obs = observe(fitted, reads, targets, solve, weight_unit);
+  obs = observe(fitted, images, targets, solve, weight_unit);
   const std::vector<double> norms = weightedNorms(coarse, p, obs);
   const double sigma = std::max(robustSigma(norms), 1e-9);
   std::vector<GeometryObservation> inliers;
@@ -258,14 +276,47 @@ UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const
   report.iterations += fine.run(p, inliers, options.max_iterations);
   report.free_parameters = fine.freeParameters();
   report.spots = static_cast<int>(inliers.size());
-  std::vector<bool> used(reads.size(), false);
+  std::vector<bool> used(images.size(), false);
   for (const auto& o : inliers) used[static_cast<std::size_t>(o.sample)] = true;
   report.images_used = static_cast<int>(std::count(used.begin(), used.end(), true));
   report.spot_rms_um_after = weightedRms(fine, p, inliers);
-
+  report.standard_errors = fine.standardErrors(p, inliers);
   geometry.setMaskGeometry(fine.apply(p));
   report.after = geometry.maskGeometry();
-  report.angle_rms_deg_after = angleRmsDeg(readImages(model, samples));
+  return report;
+}
+
+std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::Mat>& images,
+                                      const std::vector<std::array<double, 2>>& reference_rad) {
+  if (reference_rad.size() != images.size()) throw std::invalid_argument("readUnitImages: one reference per image");
+  checkImages(images, model.meta.input);
+  const std::vector<ImageRead> reads = readImages(
+      model, images.size(),
+      [&](std::size_t first, std::size_t last) {
+        return encodeImages(
+            {images.begin() + static_cast<std::ptrdiff_t>(first), images.begin() + static_cast<std::ptrdiff_t>(last)},
+            model.meta.input);
+      },
+      [&](std::size_t i) { return reference_rad[i]; });
+  std::vector<UnitImage> out;
+  for (const auto& r : reads) out.push_back(r.image);
+  return out;
+}
+
+UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const std::string& data_description,
+                                    const UnitCalibrationOptions& options) {
+  const std::string what = "unit calibration";
+  requireGeometricHead(model, data, what);
+  const std::vector<const SparseSample*> samples = evenlySpaced(data, options.max_samples);
+  const std::vector<ImageRead> reads = readSamples(model, samples);
+  if (reads.empty()) throw std::invalid_argument(what + ": no image has a lit pixel");
+  std::vector<UnitImage> images;
+  for (const auto& r : reads) images.push_back(r.image);
+  const double before_deg = angleRmsDeg(reads);
+  UnitCalibrationReport report = fitUnitGeometry(model, images, options);
+  report.images = static_cast<int>(samples.size());
+  report.angle_rms_deg_before = before_deg;
+  report.angle_rms_deg_after = angleRmsDeg(readSamples(model, samples));
   YAML::Node record = YAML::Load(report.toYaml());
   record["data"] = data_description;
   model.meta.unit_yaml = YAML::Dump(record);
@@ -277,7 +328,7 @@ MismatchCalibration calibrateSpotMismatch(Model& model, const TrainingSet& data,
   const std::string what = "spot mismatch calibration";
   requireGeometricHead(model, data, what);
   std::vector<double> values;
-  for (const ImageRead& r : readImages(model, evenlySpaced(data, max_samples)))
+  for (const ImageRead& r : readSamples(model, evenlySpaced(data, max_samples)))
     if (r.residual_per_dof > 0.0) values.push_back(r.residual_per_dof);
   if (values.empty()) throw std::invalid_argument(what + ": no image shows two spots");
   std::sort(values.begin(), values.end());

@@ -89,7 +89,8 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
     throw std::runtime_error(std::string("~inference_symmetry: ") + e.what());
   }
   EstimatorChoice choice = chooseEstimator(model_path_, calibration_path_, sensor, estimator_options);
-  if (const auto* sscnn = dynamic_cast<const SscnnEstimator*>(choice.estimator.get())) {
+  auto* sscnn = dynamic_cast<SscnnEstimator*>(choice.estimator.get());  // still owned by the screen below
+  if (sscnn) {
     inference_symmetry_ = sscnn->inferenceSymmetry();
     mismatch_threshold_ = sscnn->mismatchThreshold();
     const std::string unit = sscnn->unitCalibration();
@@ -111,6 +112,14 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
     ROS_INFO("calibration_node: SSCNN model %s for sensor %s (mirror images averaged: %s)%s", model_path_.c_str(),
              sensor_name_.c_str(), inference_symmetry_.c_str(),
              calibration_path_.empty() ? "" : (", fallback calibration " + calibration_path_).c_str());
+  }
+
+  if (pnh_.param("recalibration/enabled", false)) {
+    if (sscnn && sscnn->hasGeometry())
+      recalibration_ = std::make_unique<InFlightRecalibration>(nh_, pnh_, *sscnn, estimator_mutex_, model_path_);
+    else
+      ROS_ERROR("calibration_node: ~recalibration/enabled, but %s: in-flight recalibration is off",
+                sscnn ? "the model has no geometric head" : "no SSCNN model is in use");
   }
 
   angles_pub_ = nh_.advertise<SunAngles>("angles", 10);
@@ -183,12 +192,27 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
   if (!estimator_) {
     for (std::size_t i : where) estimates[i].status = status::kNoEstimator;
   } else if (!images.empty()) {
+    std::lock_guard<std::mutex> lock(estimator_mutex_);
     try {
       std::vector<SunEstimate> out = estimator_->estimate(images);
       for (std::size_t k = 0; k < out.size(); ++k) estimates[where[k]] = std::move(out[k]);
     } catch (const std::exception& e) {
       ROS_ERROR_THROTTLE(5.0, "calibration_node: estimator failed: %s", e.what());
       for (std::size_t i : where) estimates[i].status = status::withDetail(status::kEstimatorError, e.what());
+    }
+    if (recalibration_) {
+      std::vector<std_msgs::Header> headers;
+      std::vector<SunEstimate> paired;
+      for (std::size_t i : where) {
+        headers.push_back(batch[i]->header);
+        if (headers.back().frame_id.empty()) headers.back().frame_id = default_frame_id_;
+        paired.push_back(estimates[i]);
+      }
+      try {
+        recalibration_->offer(images, headers, paired);
+      } catch (const std::exception& e) {
+        ROS_ERROR_THROTTLE(5.0, "calibration_node: recalibration failed: %s", e.what());
+      }
     }
   }
   for (std::size_t i = 0; i < batch.size(); ++i) {
@@ -316,6 +340,7 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     reasons << (reasons.tellp() ? ", " : "") << reason << ": " << count;
   stat.add("invalid reasons", reasons.str());
   stat.add("resident memory [MiB]", residentMemoryMiB());
+  if (recalibration_) recalibration_->diagnose(stat);
 }
 
 // Nodelet front end: same class, same parameters. Images from a simulator

@@ -11,6 +11,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <array>
 #include <string>
 #include <vector>
 
@@ -49,10 +50,18 @@ class GeometryFit {
   double cost(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
   // Levenberg-Marquardt from p; returns the iterations used.
   int run(Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs, int max_iterations) const;
+  // Standard errors of the six globals at p (0 where not free): the
+  // inverse normal matrix (with the prior) times the weighted residual
+  // variance per degree of freedom.
+  std::array<double, 6> standardErrors(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
   // Residual length per observation [px] (infinity where no ray reaches).
   std::vector<double> residualNorms(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
 
  private:
+  // Normal equations at p: a = sum w J^T J + prior, b = sum w J^T r - prior p.
+  void normalEquations(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs, Eigen::MatrixXd& a,
+                       Eigen::VectorXd& b) const;
+
   MaskGeometry base_;
   std::vector<bool> free_;
   double prior_weight_;

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "digital_sun_sensor/common/sun_estimate.h"
+#include "digital_sun_sensor/model/unit_recalibration.h"
 
 namespace dss {
 
@@ -35,6 +36,18 @@ class SscnnEstimator : public SunEstimator {
   double mismatchThreshold() const;
   std::string unitCalibration() const;
   std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
+
+  // In-flight recalibration (geometric heads; the caller serialises these
+  // with estimate()): the network's reading of images with their reference
+  // angles, a refit of the model's geometry from a recalibrator's window,
+  // the geometry in use, and the model saved atomically with `record` (a
+  // YAML map) as its unit calibration.
+  bool hasGeometry() const;
+  std::vector<UnitImage> readUnit(const std::vector<cv::Mat>& images,
+                                  const std::vector<std::array<double, 2>>& reference_rad) const;
+  UnitCalibrationReport recalibrate(UnitRecalibrator& recalibrator);
+  MaskGeometry geometry() const;
+  void saveModel(const std::string& path, const std::string& record) const;
 
  private:
   struct Impl;

@@ -12,7 +12,9 @@
 // sigma stay as trained.
 #pragma once
 
+#include <array>
 #include <cstddef>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
 
@@ -22,6 +24,15 @@
 namespace dss {
 
 struct Model;
+
+// One image of a unit as the frozen network reads it (its lit sites, um
+// from the detector centre, with the solve's weight of each) and the true
+// or reference angles: what a unit calibration fits the geometry to.
+struct UnitImage {
+  std::vector<Eigen::Vector2d> site_um;
+  std::vector<double> site_weight;
+  double alpha_rad = 0.0, beta_rad = 0.0;
+};
 
 struct UnitCalibrationOptions {
   double aperture_prior_um = 20.0;  // per-aperture position prior (gauge fixing)
@@ -43,9 +54,25 @@ struct UnitCalibrationReport {
   double spot_rms_um_before = 0.0, spot_rms_um_after = 0.0;
   double angle_rms_deg_before = 0.0, angle_rms_deg_after = 0.0;
   MaskGeometry before, after;  // um (pitch 1)
+  // Standard errors of the fitted globals (height, offset x/y [um], rotation,
+  // tilt x/y [rad]; 0 where not free), from the fit's normal matrix and
+  // residuals.
+  std::array<double, 6> standard_errors{};
 
   std::string toYaml() const;  // a YAML map, stored in the model (ModelMetadata::unit_yaml)
 };
+
+// The network's reading of images of the unit (checked against the model's
+// input spec; images without a lit pixel left out) with their reference
+// angles [rad]. Throws std::invalid_argument for a count mismatch or a bad image.
+std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::Mat>& images,
+                                      const std::vector<std::array<double, 2>>& reference_rad);
+
+// Fits the model's geometry, from its current values, to these images
+// (the report without the angle errors). Throws std::invalid_argument
+// without a geometric head or with too few spots.
+UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>& images,
+                                      const UnitCalibrationOptions& options = {});
 
 // Fits the unit's geometry into `model` from labelled images of the unit
 // (encoded with the model's input spec) and records the report, with

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "digital_sun_sensor/common/sun_estimate.h"
+#include "digital_sun_sensor/ros/in_flight_recalibration.h"
 
 namespace dss {
 
@@ -43,6 +44,9 @@ class CalibrationNode {
 
   ros::NodeHandle nh_, pnh_;
   std::unique_ptr<SunEstimator> estimator_;  // null when neither model nor calibration could be used
+  // Held while estimating and while recalibration touches the model.
+  std::mutex estimator_mutex_;
+  std::unique_ptr<InFlightRecalibration> recalibration_;  // ~recalibration/enabled
   std::string source_, estimator_problem_, model_path_, calibration_path_;
   std::string inference_symmetry_ = "none";  // of the SSCNN in use
   double mismatch_threshold_ = 0.0;          // its model_mismatch threshold (0: none)

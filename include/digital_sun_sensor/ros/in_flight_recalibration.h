@@ -1,0 +1,73 @@
+// calibration_node's in-flight recalibration (~recalibration/enabled, off by
+// default): reference sun directions (geometry_msgs/Vector3Stamped in any
+// frame tf resolves to the image's) are paired with the images of the same
+// stamp, the geometric-head model's geometry is refitted from a bounded
+// window of pairs (model/unit_recalibration), the result is published on
+// unit_geometry, and ~save_unit_model writes the recalibrated unit model
+// atomically.
+#pragma once
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <geometry_msgs/Vector3Stamped.h>
+#include <ros/ros.h>
+#include <std_srvs/Trigger.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/transform_listener.h>
+
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "digital_sun_sensor/common/sun_estimate.h"
+#include "digital_sun_sensor/model/unit_recalibration.h"
+
+namespace dss {
+
+class SscnnEstimator;
+
+class InFlightRecalibration {
+ public:
+  // Reads ~recalibration/* from `pnh`; throws std::runtime_error naming a
+  // bad parameter. `estimator` (a geometric-head model) is used under
+  // `estimator_mutex`, which the caller also holds while estimating.
+  InFlightRecalibration(ros::NodeHandle nh, ros::NodeHandle pnh, SscnnEstimator& estimator, std::mutex& estimator_mutex,
+                        std::string model_path);
+
+  // Called with estimator_mutex held, after the batch was estimated: pairs
+  // images with references of their stamp and refits when due.
+  void offer(const std::vector<cv::Mat>& images, const std::vector<std_msgs::Header>& headers,
+             const std::vector<SunEstimate>& estimates);
+  void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
+
+ private:
+  void onReference(const geometry_msgs::Vector3Stamped::ConstPtr& msg);
+  bool onSave(std_srvs::Trigger::Request& request, std_srvs::Trigger::Response& response);
+  // The reference for an image, as angles in the image's frame; false when
+  // none lies within the stamp tolerance or tf cannot resolve its frame.
+  bool referenceFor(const std_msgs::Header& image, std::array<double, 2>& angles_rad);
+
+  SscnnEstimator& estimator_;
+  std::mutex& estimator_mutex_;
+  std::string model_path_, output_path_;
+  double max_stamp_difference_s_ = 0.02;
+  UnitRecalibrator recalibrator_;
+  ros::Subscriber reference_sub_;
+  ros::Publisher geometry_pub_;
+  ros::ServiceServer save_service_;
+  tf2_ros::Buffer tf_buffer_;
+  tf2_ros::TransformListener tf_listener_;
+
+  std::mutex references_mutex_;
+  std::deque<geometry_msgs::Vector3Stamped::ConstPtr> references_;  // recent, bounded
+
+  std::mutex stats_mutex_;  // what diagnose reads
+  std::uint64_t references_received_ = 0, unpaired_images_ = 0, unresolved_frames_ = 0, refit_failures_ = 0;
+  std::size_t pairs_ = 0, refused_ = 0, refits_ = 0;
+  double spread_deg_ = 0.0;
+  std::string last_refit_;
+};
+
+}  // namespace dss
