@@ -13,6 +13,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/unit_calibration.h"
+#include "digital_sun_sensor/model/unit_recalibration.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/random_mask.h"
 #include "digital_sun_sensor/sim/renderer.h"
@@ -168,6 +169,40 @@ TEST(UnitCalibration, RefusesAModelWithoutAGeometricHead) {
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("not geometric"), std::string::npos) << e.what();
   }
+}
+
+// The in-flight window: far references refused, memory bounded, no refit
+// before enough pairs spread over the field.
+TEST(UnitCalibration, RecalibratorGatesItsReferences) {
+  RecalibrationOptions options;
+  options.window = 40;
+  options.min_pairs = 20;
+  options.refit_every = 10;
+  options.min_spread_deg = 1.0;
+  UnitRecalibrator recalibrator(options);
+  UnitImage image;
+  image.site_um = {Eigen::Vector2d(1.0, 2.0)};
+  image.site_weight = {1.0};
+  // A reference 3 deg from the estimate is refused.
+  image.alpha_rad = degToRad(3.0);
+  EXPECT_FALSE(recalibrator.add(image, 0.0, 0.0));
+  EXPECT_EQ(recalibrator.refused(), 1u);
+  // 30 references at one point: enough pairs, no spread.
+  image.alpha_rad = image.beta_rad = degToRad(0.5);
+  for (int i = 0; i < 30; ++i) EXPECT_TRUE(recalibrator.add(image, image.alpha_rad, image.beta_rad));
+  EXPECT_FALSE(recalibrator.due());
+  // Spread over +-3 deg: due; the window keeps the newest 40.
+  Rng rng(3);
+  for (int i = 0; i < 30; ++i) {
+    image.alpha_rad = degToRad(rng.uniform(-3.0, 3.0));
+    image.beta_rad = degToRad(rng.uniform(-3.0, 3.0));
+    recalibrator.add(image, image.alpha_rad, image.beta_rad);
+  }
+  EXPECT_EQ(recalibrator.pairs(), 40u);
+  EXPECT_GT(recalibrator.spreadDeg(), 1.0);
+  EXPECT_TRUE(recalibrator.due());
+  options.min_pairs = 50;
+  EXPECT_THROW(UnitRecalibrator{options}, std::invalid_argument);  // more than the window
 }
 
 }  // namespace

@@ -18,6 +18,7 @@ int runEval(int argc, char** argv);
 int runTrain(int argc, char** argv);
 int runCalibrateSigma(int argc, char** argv);
 int runCalibrateUnit(int argc, char** argv);
+int runRecalibrate(int argc, char** argv);
 int runReport(int argc, char** argv);
 // dss bench infer | train (cmd_bench_nn.cpp: the only CLI file that includes libtorch).
 int runBenchInfer(int argc, char** argv);

@@ -17,6 +17,7 @@ const char* kUsage =
     "  train      train an SSCNN model on labelled bags (checkpoints, --resume)\n"
     "  calibrate-sigma  refit the level of a model's predicted sigma on held-out labelled images\n"
     "  calibrate-unit   fit a geometric-head model's geometry to labelled images of one built unit\n"
+    "  recalibrate      replay images with reference sun directions through the in-flight recalibration\n"
     "  eval       evaluate an estimator (sscnn:MODEL | centroid:CALIB) on a labelled bag: one JSON line\n"
     "  report     credibility report of a model beside the baseline: HTML, PNG plots, summary.json\n"
     "  bench      benchmarks printing one JSON line (bench sim|infer|train)\n";
@@ -34,6 +35,7 @@ int main(int argc, char** argv) {
     if (command == "train") return dss::cli::runTrain(argc, argv);
     if (command == "calibrate-sigma") return dss::cli::runCalibrateSigma(argc, argv);
     if (command == "calibrate-unit") return dss::cli::runCalibrateUnit(argc, argv);
+    if (command == "recalibrate") return dss::cli::runRecalibrate(argc, argv);
     if (command == "eval") return dss::cli::runEval(argc, argv);
     if (command == "report") return dss::cli::runReport(argc, argv);
     if (command == "--help" || command == "-h" || command == "help") {

@@ -303,6 +303,17 @@ std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::
   return out;
 }
 
+std::vector<UnitImage> readUnitImages(const Model& model, const TrainingSet& data, std::size_t max_samples,
+                                      std::vector<std::array<double, 2>>* estimates) {
+  requireGeometricHead(model, data, "unit images");
+  std::vector<UnitImage> out;
+  for (const ImageRead& r : readSamples(model, evenlySpaced(data, max_samples))) {
+    out.push_back(r.image);
+    if (estimates) estimates->push_back({r.prediction.alpha_rad, r.prediction.beta_rad});
+  }
+  return out;
+}
+
 UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const std::string& data_description,
                                     const UnitCalibrationOptions& options) {
   const std::string what = "unit calibration";

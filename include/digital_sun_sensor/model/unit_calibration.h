@@ -68,6 +68,12 @@ struct UnitCalibrationReport {
 std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::Mat>& images,
                                       const std::vector<std::array<double, 2>>& reference_rad);
 
+// The same for labelled samples (encoded with the model's input spec; at
+// most `max_samples`, evenly spaced, 0: all), their truth as the reference,
+// with the model's own estimate of each [rad] in `estimates` when given.
+std::vector<UnitImage> readUnitImages(const Model& model, const TrainingSet& data, std::size_t max_samples,
+                                      std::vector<std::array<double, 2>>* estimates = nullptr);
+
 // Fits the model's geometry, from its current values, to these images
 // (the report without the angle errors). Throws std::invalid_argument
 // without a geometric head or with too few spots.
