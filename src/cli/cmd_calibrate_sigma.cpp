@@ -8,6 +8,7 @@
 #include <iostream>
 #include <optional>
 
+#include "bag_reading.h"
 #include "commands.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/input_envelope.h"
@@ -17,7 +18,6 @@
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/bias_calibration.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
-#include "progress.h"
 
 namespace dss::cli {
 
@@ -81,14 +81,7 @@ int runCalibrateSigma(int argc, char** argv) {
     model.meta.inference_symmetry = *symmetry;
   }
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
-  std::unique_ptr<Progress> reading;
-  const TrainingData data =
-      loadTrainingData(args.all("data"), sensor, {}, max_images, [&](std::uint64_t done, std::uint64_t total) {
-        if (!reading) reading = std::make_unique<Progress>("calibrate-sigma: reading bags", total);
-        reading->update(done);
-      });
-  if (reading) reading->finish();
-  std::cerr << "read " << describe(data) << "\n";
+  const TrainingData data = readLabelledBags("calibrate-sigma", args.all("data"), sensor, {}, max_images);
   // The envelope recorded in training (which may have included anomalies)
   // widened to these images: it covers all the model has been fitted to.
   const InputEnvelope envelope = covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts()));

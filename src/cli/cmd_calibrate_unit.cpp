@@ -5,6 +5,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "bag_reading.h"
 #include "commands.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
@@ -12,7 +13,6 @@
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
-#include "progress.h"
 
 namespace dss::cli {
 namespace {
@@ -70,16 +70,8 @@ int runCalibrateUnit(int argc, char** argv) {
   DatasetTopics topics;
   topics.image = args.get("image-topic");
   topics.truth = args.get("truth-topic");
-  std::unique_ptr<Progress> reading;
-  const TrainingData data = loadTrainingData(args.all("data"), sensor, topics, static_cast<std::uint64_t>(max_images),
-                                             [&](std::uint64_t done, std::uint64_t total) {
-                                               if (!reading)
-                                                 reading =
-                                                     std::make_unique<Progress>("calibrate-unit: reading bags", total);
-                                               reading->update(done);
-                                             });
-  if (reading) reading->finish();
-  std::cerr << "read " << describe(data) << "\n";
+  const TrainingData data =
+      readLabelledBags("calibrate-unit", args.all("data"), sensor, topics, static_cast<std::uint64_t>(max_images));
   std::string bags;
   for (const auto& b : args.all("data")) bags += (bags.empty() ? "" : " ") + b;
   const UnitCalibrationReport report =

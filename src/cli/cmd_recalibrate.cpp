@@ -9,6 +9,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "bag_reading.h"
 #include "commands.h"
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
@@ -16,7 +17,6 @@
 #include "digital_sun_sensor/model/unit_recalibration.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sparse/threads.h"
-#include "progress.h"
 
 namespace dss::cli {
 
@@ -78,16 +78,8 @@ int runRecalibrate(int argc, char** argv) {
   DatasetTopics topics;
   topics.image = args.get("image-topic");
   topics.truth = args.get("truth-topic");
-  std::unique_ptr<Progress> reading;
-  const TrainingData data = loadTrainingData(args.all("data"), sensor, topics, static_cast<std::uint64_t>(max_images),
-                                             [&](std::uint64_t done, std::uint64_t total) {
-                                               if (!reading)
-                                                 reading =
-                                                     std::make_unique<Progress>("recalibrate: reading bags", total);
-                                               reading->update(done);
-                                             });
-  if (reading) reading->finish();
-  std::cerr << "read " << describe(data) << "\n";
+  const TrainingData data =
+      readLabelledBags("recalibrate", args.all("data"), sensor, topics, static_cast<std::uint64_t>(max_images));
 
   std::vector<std::array<double, 2>> estimates;
   std::vector<UnitImage> images = readUnitImages(model, data.samples, 0, &estimates);

@@ -4,12 +4,12 @@
 #include <iostream>
 #include <optional>
 
+#include "bag_reading.h"
 #include "commands.h"
 #include "digital_sun_sensor/common/json.h"
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/train/training_job.h"
-#include "progress.h"
 
 namespace dss::cli {
 namespace {
@@ -124,14 +124,8 @@ int runTrain(int argc, char** argv) {
   topics.image = args.get("image-topic");
   topics.truth = args.get("truth-topic");
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
-  std::unique_ptr<Progress> reading;
-  TrainingData data =
-      loadTrainingData(args.all("data"), sensor, topics, max_images, [&](std::uint64_t done, std::uint64_t total) {
-        if (!reading) reading = std::make_unique<Progress>("train: reading bags", total);
-        reading->update(done);
-      });
-  if (reading) reading->finish();
-  std::cerr << "read " << describe(data) << "; " << data.samples.memoryBytes() / (1 << 20) << " MiB in memory\n";
+  TrainingData data = readLabelledBags("train", args.all("data"), sensor, topics, max_images);
+  std::cerr << data.samples.memoryBytes() / (1 << 20) << " MiB in memory\n";
 
   std::signal(SIGINT, onStopSignal);
   std::signal(SIGTERM, onStopSignal);
