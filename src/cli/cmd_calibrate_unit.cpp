@@ -19,8 +19,10 @@ namespace dss::cli {
 namespace {
 // Fewer images give a sigma level too uncertain to replace the family's: on
 // drawn units of a 5-aperture mask, sigma refitted on 25 images covered 52 to
-// 62 % of fresh errors within 1 sigma, on 100 images 67 to 68 %.
-constexpr std::size_t kMinRefitImages = 100;
+// 62 % of fresh errors within 1 sigma, on 100 images 67 to 68 %. The
+// correction's degree is cross-validated, so it may be refitted earlier.
+constexpr std::size_t kMinSigmaImages = 100;
+constexpr std::size_t kMinCorrectionImages = 25;
 constexpr int kMaxCorrectionDegree = 3;
 }  // namespace
 
@@ -45,8 +47,8 @@ int runCalibrateUnit(int argc, char** argv) {
           {"refit", "MODE",
            "refit the smooth angle correction (degree <= " + std::to_string(kMaxCorrectionDegree) +
                ", cross-validated) and the predicted sigma on these images once the geometry is fitted: 'yes', "
-               "'no' (keep the model's), or 'auto' (from " +
-               std::to_string(kMinRefitImages) + " images on)",
+               "'no' (keep the model's), or 'auto' (the correction from " +
+               std::to_string(kMinCorrectionImages) + " images on, sigma from " + std::to_string(kMinSigmaImages) + ")",
            "auto", false, false},
           {"aperture-prior-um", "UM", "prior on each aperture's position (what the common terms cannot explain)",
            std::to_string(defaults.aperture_prior_um), false, false},
@@ -86,10 +88,11 @@ int runCalibrateUnit(int argc, char** argv) {
   // design), are refitted where the images are enough.
   std::optional<BiasCalibration> correction;
   std::optional<SigmaCalibration> sigma;
-  if (refit_mode == "yes" || (refit_mode == "auto" && data.samples.size() >= kMinRefitImages)) {
-    correction = calibrateBias(model, data.samples, data.samples.size(), kMaxCorrectionDegree);
-    sigma = calibrateSigma(model, data.samples, data.samples.size());
-  }
+  const std::size_t n = data.samples.size();
+  if (refit_mode == "yes" || (refit_mode == "auto" && n >= kMinCorrectionImages))
+    correction = calibrateBias(model, data.samples, n, kMaxCorrectionDegree);
+  if (refit_mode == "yes" || (refit_mode == "auto" && n >= kMinSigmaImages))
+    sigma = calibrateSigma(model, data.samples, n);
   std::optional<MismatchCalibration> mismatch;
   if (!(model.meta.mismatch_level > 0.0)) {
     try {
