@@ -133,6 +133,9 @@ TEST(UnitCalibration, RecoversABuiltUnitsGeometryFromItsImages) {
   saveModel(model, path);
   const Model loaded = loadModel(path, &design);
   EXPECT_DOUBLE_EQ(loaded.net->geometry()->maskGeometry().height_um, after.height_um);
+  for (std::size_t k = 0; k < 2; ++k)
+    EXPECT_NEAR(loaded.meta.geometry_sigma_rad[k], model.meta.geometry_sigma_rad[k],
+                1e-6 * model.meta.geometry_sigma_rad[k]);
   EXPECT_NE(loaded.meta.unit_yaml.find("25 noise-free images"), std::string::npos) << loaded.meta.unit_yaml;
   const SensorConfig other = drawnDesign(42);
   EXPECT_THROW(loadModel(path, &other), ModelError);
@@ -148,13 +151,37 @@ TEST(UnitCalibration, MismatchFlagFiresOnAnUncalibratedUnitOnly) {
   const Errors design_images = errorsOn(model, render(nominal, model.meta.input, 60, 12, true));
   const TrainingSet unit_images = render(unit, model.meta.input, 40, 13, true);
   const Errors uncalibrated = errorsOn(model, unit_images);
-  calibrateUnit(model, render(unit, model.meta.input, 25, 14, true), "25 images");
+  const UnitCalibrationReport report = calibrateUnit(model, render(unit, model.meta.input, 25, 14, true), "25 images");
   const Errors calibrated = errorsOn(model, unit_images);
   std::printf("spot mismatch: level %.3g, threshold %.2f; flagged: design %.3f, unit %.3f, calibrated unit %.3f\n",
               level.level, level.threshold, design_images.flagged, uncalibrated.flagged, calibrated.flagged);
   EXPECT_LE(design_images.flagged, 0.05);
   EXPECT_GE(uncalibrated.flagged, 0.9);
   EXPECT_LE(calibrated.flagged, 0.05);
+
+  // The geometry fitted from 25 noisy images is uncertain, and every
+  // estimate's sigma carries that (in quadrature): positive, and below one
+  // image's own sigma (the fit has 25 images' worth of spots).
+  std::vector<const SparseSample*> samples;
+  for (const auto& s : unit_images.samples()) samples.push_back(&s);
+  const std::vector<Prediction> with = model.predictSamples(samples);
+  const std::array<double, 2> geometry_sigma = model.meta.geometry_sigma_rad;
+  EXPECT_EQ(geometry_sigma, report.geometry_sigma_rad);
+  model.meta.geometry_sigma_rad = {0.0, 0.0};
+  const std::vector<Prediction> without = model.predictSamples(samples);
+  std::printf("geometry sigma from 25 images: %.3g / %.3g deg; image sigma %.3g / %.3g deg\n",
+              radToDeg(geometry_sigma[0]), radToDeg(geometry_sigma[1]),
+              radToDeg(std::sqrt(without[0].alpha_variance_rad2)), radToDeg(std::sqrt(without[0].beta_variance_rad2)));
+  for (std::size_t k = 0; k < 2; ++k) {
+    EXPECT_GT(geometry_sigma[k], 0.0);
+    EXPECT_LT(geometry_sigma[k], std::sqrt(k ? without[0].beta_variance_rad2 : without[0].alpha_variance_rad2));
+  }
+  for (std::size_t i = 0; i < with.size(); ++i) {
+    EXPECT_NEAR(with[i].alpha_variance_rad2, without[i].alpha_variance_rad2 + geometry_sigma[0] * geometry_sigma[0],
+                1e-9 * with[i].alpha_variance_rad2);
+    EXPECT_NEAR(with[i].beta_variance_rad2, without[i].beta_variance_rad2 + geometry_sigma[1] * geometry_sigma[1],
+                1e-9 * with[i].beta_variance_rad2);
+  }
 }
 
 TEST(UnitCalibration, RefusesAModelWithoutAGeometricHead) {

@@ -190,8 +190,7 @@ int GeometryFit::run(Eigen::VectorXd& p, const std::vector<GeometryObservation>&
   return it + 1;
 }
 
-std::array<double, 6> GeometryFit::standardErrors(const Eigen::VectorXd& p,
-                                                  const std::vector<GeometryObservation>& obs) const {
+Eigen::MatrixXd GeometryFit::covariance(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const {
   Eigen::MatrixXd a;
   Eigen::VectorXd b;
   normalEquations(p, obs, a, b);
@@ -202,11 +201,17 @@ std::array<double, 6> GeometryFit::standardErrors(const Eigen::VectorXd& p,
     if (predict(g, o, q)) chi2 += o.weight * (o.measured_px - q).squaredNorm();
   const auto free = static_cast<double>(std::count(free_.begin(), free_.end(), true));
   const double dof = std::max(1.0, 2.0 * static_cast<double>(obs.size()) - free);
-  const Eigen::MatrixXd covariance = a.ldlt().solve(Eigen::MatrixXd::Identity(a.rows(), a.cols())) * (chi2 / dof);
+  Eigen::MatrixXd out = a.ldlt().solve(Eigen::MatrixXd::Identity(a.rows(), a.cols())) * (chi2 / dof);
+  for (Eigen::Index k = 0; k < out.rows(); ++k)
+    if (!free_[static_cast<std::size_t>(k)]) out.row(k).setZero(), out.col(k).setZero();
+  return out;
+}
+
+std::array<double, 6> GeometryFit::standardErrors(const Eigen::VectorXd& p,
+                                                  const std::vector<GeometryObservation>& obs) const {
+  const Eigen::MatrixXd c = covariance(p, obs);
   std::array<double, 6> out{};
-  for (int k = 0; k < kNumGlobals; ++k)
-    if (free_[static_cast<std::size_t>(k)])
-      out[static_cast<std::size_t>(k)] = std::sqrt(std::max(0.0, covariance(k, k)));
+  for (int k = 0; k < kNumGlobals; ++k) out[static_cast<std::size_t>(k)] = std::sqrt(std::max(0.0, c(k, k)));
   return out;
 }
 

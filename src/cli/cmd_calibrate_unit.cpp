@@ -119,7 +119,9 @@ int runCalibrateUnit(int argc, char** argv) {
             << ", \"height_change_um\": " << a.height_um - b.height_um << ", \"offset_change_um\": ["
             << a.offset_x_um - b.offset_x_um << ", " << a.offset_y_um - b.offset_y_um
             << "], \"rotation_change_deg\": " << radToDeg(a.rotation_rad - b.rotation_rad) << ", \"tilt_change_deg\": ["
-            << radToDeg(a.tilt_x_rad - b.tilt_x_rad) << ", " << radToDeg(a.tilt_y_rad - b.tilt_y_rad) << "]";
+            << radToDeg(a.tilt_x_rad - b.tilt_x_rad) << ", " << radToDeg(a.tilt_y_rad - b.tilt_y_rad)
+            << "], \"geometry_sigma_deg\": [" << radToDeg(report.geometry_sigma_rad[0]) << ", "
+            << radToDeg(report.geometry_sigma_rad[1]) << "]";
   if (sigma)
     std::cout << ", \"sigma_scale_alpha\": " << sigma->scale_alpha << ", \"sigma_scale_beta\": " << sigma->scale_beta
               << ", \"alpha_within_1sigma_before\": " << sigma->alpha_before.within[0]

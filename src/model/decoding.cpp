@@ -60,8 +60,10 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
     p.alpha_rad = (alpha - bias[0]) * s;
     p.beta_rad = (beta - bias[1]) * s;
     const double site_factor = meta.sigma_site_law.factor(counts[static_cast<std::size_t>(i)]);
-    p.alpha_variance_rad2 = alpha_variance * s * s * site_factor * site_factor;
-    p.beta_variance_rad2 = beta_variance * s * s * site_factor * site_factor;
+    p.alpha_variance_rad2 =
+        alpha_variance * s * s * site_factor * site_factor + meta.geometry_sigma_rad[0] * meta.geometry_sigma_rad[0];
+    p.beta_variance_rad2 =
+        beta_variance * s * s * site_factor * site_factor + meta.geometry_sigma_rad[1] * meta.geometry_sigma_rad[1];
     for (std::int64_t k = 0; k < probs.size(1); ++k)
       if (k == 0 || c[i][k] > p.class_probability) {
         p.subfov_class = static_cast<int>(k);

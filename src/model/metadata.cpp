@@ -243,6 +243,9 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "threshold" << YAML::Value << m.mismatch_threshold;
     e << YAML::EndMap;
   }
+  if (m.arch.geometric_head)
+    e << YAML::Key << "geometry_sigma_rad" << YAML::Value << YAML::Flow << YAML::BeginSeq << m.geometry_sigma_rad[0]
+      << m.geometry_sigma_rad[1] << YAML::EndSeq;
   e << YAML::Key << "sensor_name" << YAML::Value << m.sensor_name;
   if (m.unit_yaml != "{}") e << YAML::Key << "unit" << YAML::Value << mapFromText(m.unit_yaml, "unit calibration");
   e << YAML::Key << "training" << YAML::Value << mapFromText(m.training_yaml, "training summary");
@@ -371,6 +374,22 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
       throw ModelError(origin +
                        ": metadata key 'spot_mismatch' needs a positive level and threshold, and a "
                        "geometric head");
+  }
+  if (const YAML::Node sigma = root["geometry_sigma_rad"]) {  // absent: the design's geometry
+    const auto bad = [&] {
+      return ModelError(origin +
+                        ": metadata key 'geometry_sigma_rad' must be two finite non-negative numbers (alpha, beta), "
+                        "in a model with a geometric head");
+    };
+    if (!sigma.IsSequence() || sigma.size() != 2 || !m.arch.geometric_head) throw bad();
+    for (std::size_t k = 0; k < 2; ++k) {
+      try {
+        m.geometry_sigma_rad[k] = sigma[k].as<double>();
+      } catch (const YAML::Exception&) {
+        throw bad();
+      }
+      if (!(m.geometry_sigma_rad[k] >= 0.0) || !std::isfinite(m.geometry_sigma_rad[k])) throw bad();
+    }
   }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
   if (const YAML::Node unit = root["unit"]) {  // absent: the nominal design

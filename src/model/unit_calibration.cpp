@@ -2,12 +2,14 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <stdexcept>
 
 #include "digital_sun_sensor/baseline/geometry_fit.h"
+#include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
@@ -18,6 +20,11 @@ namespace dss {
 namespace {
 
 constexpr std::size_t kSamplesPerPass = 64;
+// The geometry sigma: images re-solved (evenly spaced) through geometries
+// drawn from the fit's covariance (fixed seed: a calibration is repeatable).
+constexpr std::size_t kSigmaImages = 100;
+constexpr int kSigmaDraws = 32;
+constexpr std::uint64_t kSigmaSeed = 0x5161;
 
 // One image as the network reads it: its lit sites with the weights the
 // solve gives them, the model's estimate and the solve's residual.
@@ -186,6 +193,42 @@ double weightedRms(const GeometryFit& fit, const Eigen::VectorXd& p, const std::
   return weight > 0.0 ? std::sqrt(sum / weight) : 0.0;
 }
 
+// RMS change of each image's solved angles [rad] when the geometry is drawn
+// from the fit's covariance about p: the error the fitted geometry adds to
+// every estimate.
+std::array<double, 2> geometrySigma(const GeometryFit& fit, const Eigen::VectorXd& p, const Eigen::MatrixXd& covariance,
+                                    const geometric::Design& design, const std::vector<UnitImage>& images,
+                                    const std::vector<Eigen::Vector2d>& targets, const geometric::Options& options) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(covariance);
+  const Eigen::MatrixXd root = eigen.eigenvectors() * eigen.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+  geometric::Design geometry = design;
+  geometry.mask = fit.apply(p);
+  std::vector<std::vector<geometric::Site>> sites;
+  std::vector<Eigen::Vector2d> reference, solved;
+  const std::size_t n = std::min(images.size(), kSigmaImages);
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::size_t i = k * images.size() / n;
+    if (images[i].site_um.empty()) continue;
+    sites.emplace_back();
+    for (std::size_t s = 0; s < images[i].site_um.size(); ++s)
+      sites.back().push_back({images[i].site_um[s], images[i].site_weight[s]});
+    reference.push_back(targets[i]);
+    solved.push_back(geometric::solveImage(geometry, sites.back(), targets[i], options).angles_rad);
+  }
+  if (sites.empty()) return {0.0, 0.0};
+  Rng rng(kSigmaSeed);
+  Eigen::Array2d sum = Eigen::Array2d::Zero();
+  Eigen::VectorXd z(p.size());
+  for (int d = 0; d < kSigmaDraws; ++d) {
+    for (Eigen::Index k = 0; k < z.size(); ++k) z[k] = rng.normal();
+    geometry.mask = fit.apply(p + root * z);
+    for (std::size_t i = 0; i < sites.size(); ++i)
+      sum += (geometric::solveImage(geometry, sites[i], reference[i], options).angles_rad - solved[i]).array().square();
+  }
+  const Eigen::Array2d sigma = (sum / static_cast<double>(kSigmaDraws * sites.size())).sqrt();
+  return {sigma[0], sigma[1]};
+}
+
 double angleRmsDeg(const std::vector<ImageRead>& reads) {
   double sum = 0.0;
   for (const auto& r : reads) {
@@ -208,6 +251,8 @@ std::string UnitCalibrationReport::toYaml() const {
   out << YAML::Key << "spot_rms_um_after" << YAML::Value << spot_rms_um_after;
   out << YAML::Key << "angle_rms_deg_before" << YAML::Value << angle_rms_deg_before;
   out << YAML::Key << "angle_rms_deg_after" << YAML::Value << angle_rms_deg_after;
+  out << YAML::Key << "geometry_sigma_deg" << YAML::Value << YAML::Flow << YAML::BeginSeq
+      << radToDeg(geometry_sigma_rad[0]) << radToDeg(geometry_sigma_rad[1]) << YAML::EndSeq;
   // What the fit changed, in the geometry's own terms.
   double shift2 = 0.0;
   for (std::size_t k = 0; k < after.apertures_um.size(); ++k)
@@ -281,7 +326,9 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   report.images_used = static_cast<int>(std::count(used.begin(), used.end(), true));
   report.spot_rms_um_after = weightedRms(fine, p, inliers);
   report.standard_errors = fine.standardErrors(p, inliers);
+  report.geometry_sigma_rad = geometrySigma(fine, p, fine.covariance(p, inliers), design, images, targets, solve);
   geometry.setMaskGeometry(fine.apply(p));
+  model.meta.geometry_sigma_rad = report.geometry_sigma_rad;
   report.after = geometry.maskGeometry();
   return report;
 }

@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <array>
 #include <cmath>
 #include <stdexcept>
 
@@ -12,9 +13,21 @@ namespace dss {
 
 SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples) {
   model.meta.sigma_site_law = {};  // refitted below, from the head's (or the constant's) own sigma
+  // A unit calibration's geometry sigma is not fitted here: on the images
+  // the geometry was fitted to, its error is absent; on fresh ones it adds.
+  const std::array<double, 2> geometry_sigma = model.meta.geometry_sigma_rad;
+  model.meta.geometry_sigma_rad = {0.0, 0.0};
+  std::vector<HeldOutPrediction> held_out;
+  try {
+    held_out = predictHeldOut(model, data, max_samples, "sigma calibration");
+  } catch (...) {
+    model.meta.geometry_sigma_rad = geometry_sigma;
+    throw;
+  }
+  model.meta.geometry_sigma_rad = geometry_sigma;
   std::vector<ErrorAndSigma> za, zb;
   std::vector<int> sites;
-  for (const HeldOutPrediction& h : predictHeldOut(model, data, max_samples, "sigma calibration")) {
+  for (const HeldOutPrediction& h : held_out) {
     const Prediction& p = h.prediction;
     za.push_back({p.alpha_rad - h.sample->alpha_rad, std::sqrt(p.alpha_variance_rad2)});
     zb.push_back({p.beta_rad - h.sample->beta_rad, std::sqrt(p.beta_variance_rad2)});

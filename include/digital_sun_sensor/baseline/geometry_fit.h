@@ -50,9 +50,11 @@ class GeometryFit {
   double cost(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
   // Levenberg-Marquardt from p; returns the iterations used.
   int run(Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs, int max_iterations) const;
-  // Standard errors of the six globals at p (0 where not free): the
-  // inverse normal matrix (with the prior) times the weighted residual
-  // variance per degree of freedom.
+  // Covariance of the parameters at p (zero rows and columns where not
+  // free): the inverse normal matrix (with the prior) times the weighted
+  // residual variance per degree of freedom.
+  Eigen::MatrixXd covariance(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
+  // Standard errors of the six globals at p (0 where not free).
   std::array<double, 6> standardErrors(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
   // Residual length per observation [px] (infinity where no ray reaches).
   std::vector<double> residualNorms(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;

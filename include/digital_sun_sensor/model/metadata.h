@@ -2,6 +2,7 @@
 // sensor it was trained for, training summary and metrics. Torch-free YAML.
 #pragma once
 
+#include <array>
 #include <stdexcept>
 #include <string>
 
@@ -37,6 +38,11 @@ struct ModelMetadata {
   // mismatch_threshold of them.
   double mismatch_level = 0.0;
   double mismatch_threshold = 0.0;
+  // Geometric head: sigma [rad] of alpha and beta from the uncertainty of
+  // the unit calibration's fitted geometry (the fit is the same for every
+  // image, so it is not in the network's sigma), added in quadrature to each
+  // estimate's; 0 for the design.
+  std::array<double, 2> geometry_sigma_rad{};
   // YAML map: the unit calibration the geometry holds (dss calibrate-unit:
   // data, images, residuals, fitted parameters); "{}": the nominal design.
   std::string unit_yaml = "{}";

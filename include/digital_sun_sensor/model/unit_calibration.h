@@ -9,7 +9,8 @@
 // associated through the geometry) against the spots the geometry puts at
 // the angles from which the head's learned correction gives the true ones,
 // weighed as the solve weighs them. The network, its correction and the
-// sigma stay as trained.
+// sigma stay as trained; the fitted geometry's own uncertainty is added to
+// the sigma (ModelMetadata::geometry_sigma_rad).
 #pragma once
 
 #include <array>
@@ -58,6 +59,9 @@ struct UnitCalibrationReport {
   // tilt x/y [rad]; 0 where not free), from the fit's normal matrix and
   // residuals.
   std::array<double, 6> standard_errors{};
+  // Sigma [rad] of alpha and beta from the fitted geometry's uncertainty
+  // (set in the model as ModelMetadata::geometry_sigma_rad).
+  std::array<double, 2> geometry_sigma_rad{};
 
   std::string toYaml() const;  // a YAML map, stored in the model (ModelMetadata::unit_yaml)
 };
@@ -74,8 +78,9 @@ std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::
 std::vector<UnitImage> readUnitImages(const Model& model, const TrainingSet& data, std::size_t max_samples,
                                       std::vector<std::array<double, 2>>* estimates = nullptr);
 
-// Fits the model's geometry, from its current values, to these images
-// (the report without the angle errors). Throws std::invalid_argument
+// Fits the model's geometry, from its current values, to these images, and
+// sets the model's geometry sigma from the fit (the report without the
+// angle errors). Throws std::invalid_argument
 // without a geometric head or with too few spots.
 UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>& images,
                                       const UnitCalibrationOptions& options = {});

@@ -1,0 +1,171 @@
+#!/usr/bin/env bash
+# README's "Your own unit" tables (method: docs/unit_calibration.md).
+#
+# Mask A of docs/results/irregular_masks.md (5 apertures, drawn with seed 11)
+# gets a family model trained on its design; units are drawn from it with the
+# as-built tolerances at SCALE x typical (fresh seed per unit); each unit is
+# calibrated on N of its own lab images (`dss calibrate-unit`, network frozen)
+# and, beside it, the baseline on the same N images (`dss calibrate`); both are
+# evaluated on 2000 other images of the same unit. The drift part moves the
+# mask of units calibrated on 400 images (20 um higher, 5 um along x) and
+# replays 200 reference images through `dss recalibrate`.
+#
+#   scripts/unit_tables.sh             everything, then both tables
+#   scripts/unit_tables.sh table       the tables from what is there
+# Data in $DATA_DIR (default .ws/units_data); every file that exists is reused,
+# so a cut run continues where it stopped. Knobs (environment): UNITS, SCALES,
+# NS, DRIFT_UNITS, EPOCHS (family model), JOBS (units in parallel, default 2).
+set -euo pipefail
+source "$(dirname "$0")/dss_env.sh"
+DATA="${DATA_DIR:-$WS/units_data}"
+UNITS="${UNITS:-9501 9502 9503 9504 9505}"
+SCALES="${SCALES:-1 3}"
+NS="${NS:-0 10 25 50 100 400}"
+DRIFT_UNITS="${DRIFT_UNITS:-9501 9502 9503}"
+EPOCHS="${EPOCHS:-2}"
+JOBS="${JOBS:-2}"
+mkdir -p "$DATA"
+cd "$DATA"
+log() { echo "[unit_tables] $*" >&2; }
+quiet() { "$@" >/dev/null 2>>"$DATA/errors.log"; }
+
+family() {
+  [ -f A.yaml ] || quiet "$DSS" mask --sensor "$ROOT/config/sensors/thesis_sa.yaml" --set detector.width_px=640 \
+    --set detector.height_px=512 --set detector.pitch_um=2.2 --set mask.height_mm=2.5 \
+    --set detector_noise.bit_depth=10 --set threshold.level_fraction=0.5 --set fov.alpha_max_deg=8 \
+    --set fov.beta_max_deg=8 --apertures 5 --seed 11 --out A.yaml
+  [ -f A.train.bag ] || { log "design: 24000 training images"; quiet "$DSS" generate --sensor A.yaml --count 24000 --seed 9101 --out A.train.bag; }
+  [ -f A.sigma.bag ] || quiet "$DSS" generate --sensor A.yaml --count 2000 --seed 9103 --out A.sigma.bag
+  [ -f A.test.bag ] || quiet "$DSS" generate --sensor A.yaml --count 2000 --seed 9102 --out A.test.bag
+  if [ ! -f A.dssmodel ]; then
+    log "design: training the family model ($EPOCHS epochs; log A.train.log)"
+    "$DSS" train --data A.train.bag --epochs "$EPOCHS" --out A.dssmodel >A.train.log 2>&1
+  fi
+  # The spot-mismatch level of the design (what model_mismatch is judged against).
+  [ -f A.family.dssmodel ] || quiet "$DSS" calibrate-sigma --model A.dssmodel --data A.sigma.bag --out A.family.dssmodel
+  [ -f A.calib.yaml ] || quiet "$DSS" calibrate --data A.train.bag --max-images 1000 --out A.calib.yaml
+  # The drifted unit: its mask 20 um higher and 5 um along x (the as-built draw of a seed stays the same).
+  [ -f A.drift.yaml ] || /usr/bin/python3 - <<'PY'
+import yaml
+c = yaml.safe_load(open("A.yaml"))
+c["name"] += "_drifted"
+c["mask"]["height_mm"] += 0.020
+for a in c["mask"]["apertures"]:
+    a["x_um"] += 5.0
+yaml.safe_dump(c, open("A.drift.yaml.tmp", "w"), sort_keys=False)
+PY
+  [ -f A.drift.yaml ] || mv A.drift.yaml.tmp A.drift.yaml
+  [ -f design.sscnn.csv ] || quiet "$DSS" eval --data A.test.bag --estimator sscnn:A.family.dssmodel --crlb-samples 0 \
+    --csv design.sscnn.csv
+  [ -f design.centroid.csv ] || quiet "$DSS" eval --data A.test.bag --estimator centroid:A.calib.yaml \
+    --crlb-samples 0 --csv design.centroid.csv
+}
+
+# One unit: seed $1 at $2 x typical tolerances.
+unit() {
+  local seed=$1 scale=$2 u="u$1_x$2"
+  local draw=(--sensor A.yaml --anomalies "as_built=$scale" --set as_built.aperture_diameter_sigma_um=0)
+  [ -f "$u.lab.bag" ] || quiet "$DSS" generate "${draw[@]}" --count 400 --seed "$seed" --threads 1 --out "$u.lab.bag"
+  [ -f "$u.test.bag" ] || quiet "$DSS" generate "${draw[@]}" --count 2000 --seed "$seed" --offset 100000 --threads 1 \
+    --out "$u.test.bag"
+  for n in $NS; do
+    local model=A.family.dssmodel calib=A.calib.yaml
+    if [ "$n" != 0 ]; then
+      model="$u.n$n.dssmodel" calib="$u.n$n.calib.yaml"
+      [ -f "$model" ] || quiet "$DSS" calibrate-unit --model A.family.dssmodel --data "$u.lab.bag" --max-images "$n" \
+        --out "$model" || true
+      # The baseline may not calibrate a unit at all (no spot matched): recorded as a missing file.
+      [ -f "$calib" ] || quiet "$DSS" calibrate --data "$u.lab.bag" --max-images "$n" --out "$calib" || true
+    fi
+    [ -f "$u.n$n.sscnn.csv" ] || [ ! -f "$model" ] || quiet "$DSS" eval --data "$u.test.bag" \
+      --estimator "sscnn:$model" --crlb-samples 0 --csv "$u.n$n.sscnn.csv"
+    [ -f "$u.n$n.centroid.csv" ] || [ ! -f "$calib" ] || quiet "$DSS" eval --data "$u.test.bag" \
+      --estimator "centroid:$calib" --crlb-samples 0 --csv "$u.n$n.centroid.csv"
+  done
+  log "unit $seed at ${scale}x done"
+}
+
+# One unit of 1x calibrated on 400 lab images, whose mask then moved.
+drift() {
+  local seed=$1 u="u$1_x1" d="d$1"
+  local draw=(--anomalies as_built=1 --set as_built.aperture_diameter_sigma_um=0)
+  [ -f "$d.ref.bag" ] || quiet "$DSS" generate --sensor A.drift.yaml "${draw[@]}" --count 200 --seed "$seed" \
+    --offset 200000 --threads 1 --out "$d.ref.bag"
+  [ -f "$d.test.bag" ] || quiet "$DSS" generate --sensor A.drift.yaml "${draw[@]}" --count 2000 --seed "$seed" \
+    --offset 300000 --threads 1 --out "$d.test.bag"
+  [ -f "$d.recal.dssmodel" ] || quiet "$DSS" recalibrate --model "$u.n400.dssmodel" --data "$d.ref.bag" \
+    --out "$d.recal.dssmodel"
+  [ -f "$d.outl.dssmodel" ] || quiet "$DSS" recalibrate --model "$u.n400.dssmodel" --data "$d.ref.bag" \
+    --reference-outliers 0.05 --seed "$seed" --out "$d.outl.dssmodel"
+  [ -f "$d.calib.yaml" ] || quiet "$DSS" calibrate --data "$d.ref.bag" --out "$d.calib.yaml" || true
+  local name est
+  for name in before:sscnn:$u.n400.dssmodel recal:sscnn:$d.recal.dssmodel outl:sscnn:$d.outl.dssmodel \
+    centroid_before:centroid:$u.n400.calib.yaml centroid_ref:centroid:$d.calib.yaml; do
+    est="${name#*:}"
+    [ -f "$d.${name%%:*}.csv" ] || [ ! -f "${est#*:}" ] || quiet "$DSS" eval --data "$d.test.bag" --estimator "$est" \
+      --crlb-samples 0 --csv "$d.${name%%:*}.csv"
+  done
+  log "drift of unit $seed done"
+}
+
+tables() {
+  /usr/bin/python3 - "$UNITS" "$SCALES" "$NS" "$DRIFT_UNITS" <<'PY'
+import csv, math, os, sys
+units, scales, ns, drift_units = (a.split() for a in sys.argv[1:5])
+
+def stats(path):
+    """Mean |error| (deg) over the valid images (over all when none is valid), valid rate, 1-sigma coverage."""
+    if not os.path.exists(path):
+        return None
+    rows = list(csv.DictReader(open(path)))
+    valid = [r for r in rows if r["valid"] == "1"]
+    use = valid or [r for r in rows if math.isfinite(float(r["alpha_error_deg"]))]
+    mean = lambda ax: sum(abs(float(r[ax + "_error_deg"])) for r in use) / len(use)
+    cover = lambda ax: sum(abs(float(r[ax + "_error_deg"])) <= float(r[ax + "_sigma_deg"]) for r in valid) / max(1, len(valid))
+    return dict(a=mean("alpha"), b=mean("beta"), valid=len(valid) / len(rows), ca=cover("alpha"), cb=cover("beta"))
+
+def avg(items, key):
+    return sum(s[key] for s in items) / len(items)
+
+def fmt(v):
+    return "%.2g" % v if v >= 0.01 else "%.6f" % v
+
+def cells(items, coverage):
+    if not items:
+        return "— | —" + (" | —" if coverage else "")
+    out = "%s / %s | %.0f %%" % (fmt(avg(items, "a")), fmt(avg(items, "b")), 100 * avg(items, "valid"))
+    if coverage:
+        out += " | %.0f / %.0f %%" % (100 * avg(items, "ca"), 100 * avg(items, "cb")) if avg(items, "valid") > 0 else " | —"
+    return out
+
+d = stats("design.sscnn.csv")
+if d:
+    print("Design (2000 images of the design itself): SSCNN %s / %s deg, %.1f %% valid" % (fmt(d["a"]), fmt(d["b"]), 100 * d["valid"]))
+    print()
+print("| tolerances | N lab images | SSCNN mean α / β (deg) | valid | within 1σ α / β | baseline mean α / β (deg) | valid | units the baseline calibrates |")
+print("|---|---|---|---|---|---|---|---|")
+for k in scales:
+    for n in ns:
+        s = [x for x in (stats("u%s_x%s.n%s.sscnn.csv" % (u, k, n)) for u in units) if x]
+        c = [x for x in (stats("u%s_x%s.n%s.centroid.csv" % (u, k, n)) for u in units) if x]
+        label = "none (the design's)" if n == "0" else n
+        print("| %s× | %s | %s | %s | %d of %d |" % (k, label, cells(s, True), cells(c, False), len(c), len(units)))
+print()
+print("| unit | calibrated (400 lab images) mean α / β (deg) | drifted, not recalibrated | recalibrated from 200 references | with 5 % of the references 2–5° wrong | baseline calibrated on the 200 references |")
+print("|---|---|---|---|---|---|")
+for u in drift_units:
+    row = [stats("u%s_x1.n400.sscnn.csv" % u)] + [stats("d%s.%s.csv" % (u, n)) for n in ("before", "recal", "outl", "centroid_ref")]
+    print("| %s | %s |" % (u, " | ".join("—" if r is None else "%s / %s" % (fmt(r["a"]), fmt(r["b"])) for r in row)))
+PY
+}
+
+if [ "${1:-}" != table ]; then
+  family
+  export -f unit quiet log
+  export DSS DATA NS
+  for k in $SCALES; do for s in $UNITS; do echo "$s $k"; done; done |
+    xargs -P "$JOBS" -n 2 bash -c 'cd "$DATA" && unit "$0" "$1"'
+  export -f drift
+  for s in $DRIFT_UNITS; do echo "$s"; done | xargs -P "$JOBS" -n 1 bash -c 'cd "$DATA" && drift "$0"'
+fi
+tables
