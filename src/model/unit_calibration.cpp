@@ -21,10 +21,16 @@ namespace {
 
 constexpr std::size_t kSamplesPerPass = 64;
 // The geometry sigma: images re-solved (evenly spaced) through geometries
-// drawn from the fit's covariance (fixed seed: a calibration is repeatable).
+// drawn from the fit's covariance (fixed seed: a calibration is repeatable),
+// scaled down by kSigmaStep and the change scaled back up. The draws are
+// linearised so: along the directions the data leave to the aperture prior
+// (a common offset or rotation taken by every aperture's position) a full
+// draw moves the apertures by tens of micrometres, whose second-order
+// effect on the spots is not a calibration error.
 constexpr std::size_t kSigmaImages = 100;
 constexpr int kSigmaDraws = 32;
 constexpr std::uint64_t kSigmaSeed = 0x5161;
+constexpr double kSigmaStep = 0.01;
 
 // One image as the network reads it: its lit sites with the weights the
 // solve gives them, the model's estimate and the solve's residual.
@@ -221,9 +227,11 @@ std::array<double, 2> geometrySigma(const GeometryFit& fit, const Eigen::VectorX
   Eigen::VectorXd z(p.size());
   for (int d = 0; d < kSigmaDraws; ++d) {
     for (Eigen::Index k = 0; k < z.size(); ++k) z[k] = rng.normal();
-    geometry.mask = fit.apply(p + root * z);
+    geometry.mask = fit.apply(p + kSigmaStep * (root * z));
     for (std::size_t i = 0; i < sites.size(); ++i)
-      sum += (geometric::solveImage(geometry, sites[i], reference[i], options).angles_rad - solved[i]).array().square();
+      sum += ((geometric::solveImage(geometry, sites[i], reference[i], options).angles_rad - solved[i]) / kSigmaStep)
+                 .array()
+                 .square();
   }
   const Eigen::Array2d sigma = (sum / static_cast<double>(kSigmaDraws * sites.size())).sqrt();
   return {sigma[0], sigma[1]};
