@@ -114,7 +114,8 @@ import csv, math, os, sys
 units, scales, ns, drift_units = (a.split() for a in sys.argv[1:5])
 
 def stats(path):
-    """Mean |error| (deg) over the valid images (over all when none is valid), valid rate, 1-sigma coverage."""
+    """Mean |error| (deg) over the valid images (over all when none is valid), valid and
+    model_mismatch rates, 1-sigma coverage."""
     if not os.path.exists(path):
         return None
     rows = list(csv.DictReader(open(path)))
@@ -122,7 +123,9 @@ def stats(path):
     use = valid or [r for r in rows if math.isfinite(float(r["alpha_error_deg"]))]
     mean = lambda ax: sum(abs(float(r[ax + "_error_deg"])) for r in use) / len(use)
     cover = lambda ax: sum(abs(float(r[ax + "_error_deg"])) <= float(r[ax + "_sigma_deg"]) for r in valid) / max(1, len(valid))
-    return dict(a=mean("alpha"), b=mean("beta"), valid=len(valid) / len(rows), ca=cover("alpha"), cb=cover("beta"))
+    flagged = sum(r["status"].startswith("model_mismatch") for r in rows)
+    return dict(a=mean("alpha"), b=mean("beta"), valid=len(valid) / len(rows), ca=cover("alpha"), cb=cover("beta"),
+                flagged=flagged / len(rows))
 
 def avg(items, key):
     return sum(s[key] for s in items) / len(items)
@@ -130,26 +133,31 @@ def avg(items, key):
 def fmt(v):
     return "%.2g" % v if v >= 0.01 else "%.6f" % v
 
-def cells(items, coverage):
+def cells(items, of, coverage):
     if not items:
         return "— | —" + (" | —" if coverage else "")
     out = "%s / %s | %.0f %%" % (fmt(avg(items, "a")), fmt(avg(items, "b")), 100 * avg(items, "valid"))
     if coverage:
         out += " | %.0f / %.0f %%" % (100 * avg(items, "ca"), 100 * avg(items, "cb")) if avg(items, "valid") > 0 else " | —"
-    return out
+    return out + (" (%d of %d units)" % (len(items), of) if len(items) < of else "")
 
 d = stats("design.sscnn.csv")
 if d:
-    print("Design (2000 images of the design itself): SSCNN %s / %s deg, %.1f %% valid" % (fmt(d["a"]), fmt(d["b"]), 100 * d["valid"]))
-    print()
-print("| tolerances | N lab images | SSCNN mean α / β (deg) | valid | within 1σ α / β | baseline mean α / β (deg) | valid | units the baseline calibrates |")
-print("|---|---|---|---|---|---|---|---|")
+    print("Design, 2000 images of the design itself: SSCNN %s / %s deg, %.1f %% valid, %.2f %% flagged model_mismatch"
+          % (fmt(d["a"]), fmt(d["b"]), 100 * d["valid"], 100 * d["flagged"]))
+for k in scales:
+    s = [x for x in (stats("u%s_x%s.n0.sscnn.csv" % (u, k)) for u in units) if x]
+    if s:
+        print("Uncalibrated units at %s×: %.1f %% of images flagged model_mismatch (%d units)" % (k, 100 * avg(s, "flagged"), len(s)))
+print()
+print("| tolerances | N lab images | SSCNN mean α / β (deg) | valid | within 1σ α / β | baseline mean α / β (deg) | valid |")
+print("|---|---|---|---|---|---|---|")
 for k in scales:
     for n in ns:
         s = [x for x in (stats("u%s_x%s.n%s.sscnn.csv" % (u, k, n)) for u in units) if x]
         c = [x for x in (stats("u%s_x%s.n%s.centroid.csv" % (u, k, n)) for u in units) if x]
         label = "none (the design's)" if n == "0" else n
-        print("| %s× | %s | %s | %s | %d of %d |" % (k, label, cells(s, True), cells(c, False), len(c), len(units)))
+        print("| %s× | %s | %s | %s |" % (k, label, cells(s, len(units), True), cells(c, len(units), False)))
 print()
 print("| unit | calibrated (400 lab images) mean α / β (deg) | drifted, not recalibrated | recalibrated from 200 references | with 5 % of the references 2–5° wrong | baseline calibrated on the 200 references |")
 print("|---|---|---|---|---|---|")
