@@ -207,9 +207,7 @@ Eigen::MatrixXd GeometryFit::covariance(const Eigen::VectorXd& p, const std::vec
   return out;
 }
 
-std::array<double, 6> GeometryFit::standardErrors(const Eigen::VectorXd& p,
-                                                  const std::vector<GeometryObservation>& obs) const {
-  const Eigen::MatrixXd c = covariance(p, obs);
+std::array<double, 6> GeometryFit::standardErrors(const Eigen::MatrixXd& c) {
   std::array<double, 6> out{};
   for (int k = 0; k < kNumGlobals; ++k) out[static_cast<std::size_t>(k)] = std::sqrt(std::max(0.0, c(k, k)));
   return out;

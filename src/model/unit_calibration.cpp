@@ -333,8 +333,9 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   for (const auto& o : inliers) used[static_cast<std::size_t>(o.sample)] = true;
   report.images_used = static_cast<int>(std::count(used.begin(), used.end(), true));
   report.spot_rms_um_after = weightedRms(fine, p, inliers);
-  report.standard_errors = fine.standardErrors(p, inliers);
-  report.geometry_sigma_rad = geometrySigma(fine, p, fine.covariance(p, inliers), design, images, targets, solve);
+  const Eigen::MatrixXd covariance = fine.covariance(p, inliers);
+  report.standard_errors = GeometryFit::standardErrors(covariance);
+  report.geometry_sigma_rad = geometrySigma(fine, p, covariance, design, images, targets, solve);
   geometry.setMaskGeometry(fine.apply(p));
   model.meta.geometry_sigma_rad = report.geometry_sigma_rad;
   report.after = geometry.maskGeometry();

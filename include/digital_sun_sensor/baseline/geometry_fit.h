@@ -54,8 +54,8 @@ class GeometryFit {
   // free): the inverse normal matrix (with the prior) times the weighted
   // residual variance per degree of freedom.
   Eigen::MatrixXd covariance(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
-  // Standard errors of the six globals at p (0 where not free).
-  std::array<double, 6> standardErrors(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
+  // Standard errors of the six globals from covariance() (0 where not free).
+  static std::array<double, 6> standardErrors(const Eigen::MatrixXd& covariance);
   // Residual length per observation [px] (infinity where no ray reaches).
   std::vector<double> residualNorms(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
 
