@@ -11,6 +11,7 @@
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/geometric_head.h"
+#include "digital_sun_sensor/model/geometry_design.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/geometry.h"
@@ -161,6 +162,43 @@ TEST(GeometricHead, SolveRecoversKnownAnglesExactlyOnAnyMask) {
     EXPECT_GE(solution.spots_read.min().item<double>(), 1.0);
     EXPECT_GT(cut_spots, 0) << "the draw should cut some spots";
   }
+}
+
+// A full 3 x 3 lattice (thesis_ma) looks the same one pitch (3 deg) further
+// once a row or column has left the detector, but for the spots that shift
+// would put on it: with a coarse estimate that knows nothing (normal
+// incidence), the search still finds the true association everywhere.
+TEST(GeometricHead, PeriodicLatticeIsNotReadOnePitchOff) {
+  const SensorConfig config = loadSensorConfig(DSS_SOURCE_DIR "/config/sensors/thesis_ma.yaml");
+  const GeometryDesign design = geometryDesignOf(config);
+  SensorGeometry geometry(static_cast<int>(design.apertures_um.size()), design.groupCount());
+  geometry->setDesign(design);
+  Rng rng(5);
+  Sites sites;
+  std::vector<double> truth;
+  int images = 0, edge_left = 0;
+  const double half_um = 0.5 * config.detector.width_px * config.detector.pitch_um;
+  for (; images < 60; ++images) {
+    const double alpha = degToRad(rng.uniform(-4.5, 4.5)), beta = degToRad(rng.uniform(-4.5, 4.5));
+    truth.insert(truth.end(), {alpha, beta});
+    const auto spots = geometry->spotsUm(torch::tensor({alpha, beta}, torch::kFloat64).view({1, 2}));
+    int off = 0;
+    for (int k = 0; k < spots.size(1); ++k) {
+      const Eigen::Vector2d centre(spots[0][k][0].item<double>(), spots[0][k][1].item<double>());
+      off += std::abs(centre.x()) > half_um + 10.0 || std::abs(centre.y()) > half_um + 10.0;
+      addSpot(sites, centre, 1.0, config, images);
+    }
+    edge_left += off > 0;
+  }
+  const std::vector<double> coarse(truth.size(), 0.0);
+  auto options = optionsFor(config);
+  options.gate_um = geometricGateUm(config, design);
+  options.search_reference = true;
+  const auto solution = solveGeometry(*geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight),
+                                      torch::tensor(sites.index), images, tensorOf(coarse).view({-1, 2}), options);
+  const auto error = (solution.angles_rad - tensorOf(truth).view({-1, 2})).abs().max().item<double>();
+  EXPECT_LT(error, 1e-10);
+  EXPECT_GT(edge_left, 20) << "most draws should have a row or column off the detector";
 }
 
 TEST(GeometricHead, OverlappingSpotsReadAsOneGroup) {

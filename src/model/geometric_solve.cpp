@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <utility>
+#include <vector>
 
 #include "digital_sun_sensor/sim/geometry.h"
 
@@ -131,22 +133,29 @@ Eigen::Vector2d refine(const Design& design, const std::vector<Site>& sites, Eig
 
 // How well spots at the angles account for the light: the fraction of it
 // within half a gate of a spot, less the fraction of the spots the detector
-// should show (centre a quarter gate inside its edges, allowing for a
-// hypothesis off by a spot radius) that hold under 2 % of it.
+// should show (centre two pixels inside its edges) that are dark (under a
+// tenth of the mean light of the spots that hold some). A spot centred just
+// inside an edge still shows about half its light; the rule is relative to a
+// spot's light, not the image's, since a spot of a 49-aperture mask holds 2 %.
 double score(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles,
              const Options& options) {
   const Reading r = readSpots(design, sites, angles, 0.5 * options.gate_um, options);
   double total = 0.0, explained = 0.0;
+  int lit = 0;
   for (const auto& s : sites) total += s.weight;
-  for (double sum : r.sum) explained += sum;
+  for (double sum : r.sum) {
+    explained += sum;
+    if (sum > 0.0) ++lit;
+  }
+  const double dark_below = 0.1 * explained / std::max(lit, 1);
   const auto spots = groupSpots(design, angles);
-  const double limit_x = 0.5 * options.width_px * options.pitch_um - 0.25 * options.gate_um;
-  const double limit_y = 0.5 * options.height_px * options.pitch_um - 0.25 * options.gate_um;
+  const double limit_x = 0.5 * (options.width_px - 4) * options.pitch_um;
+  const double limit_y = 0.5 * (options.height_px - 4) * options.pitch_um;
   int expected = 0, dark = 0;
   for (std::size_t g = 0; g < spots.size(); ++g) {
     if (std::abs(spots[g].x()) >= limit_x || std::abs(spots[g].y()) >= limit_y) continue;
     ++expected;
-    if (r.sum[g] < 0.02 * total) ++dark;
+    if (!(r.sum[g] >= dark_below)) ++dark;
   }
   return explained / std::max(total, 1e-30) - static_cast<double>(dark) / std::max(expected, 1);
 }
@@ -186,20 +195,32 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
   if (options.search && !sites.empty()) {
     // Hypotheses: the reference, and per group the angles that put its spot
     // on the brightest site (the first of equals), each refined and scored.
+    // Of those that score within kTieScore of the best, the one nearest the
+    // reference wins: a periodic mask whose edge row has left the detector
+    // looks the same one pitch further (thesis_ma: 3 deg), and only the
+    // network's coarse estimate can tell which.
+    constexpr double kTieScore = 0.02;
     std::size_t anchor = 0;
     for (std::size_t i = 1; i < sites.size(); ++i)
       if (sites[i].weight > sites[anchor].weight) anchor = i;
-    Eigen::Vector2d best_angles = refine(design, sites, angles, options);
-    double best = score(design, sites, best_angles, options);
+    std::vector<std::pair<Eigen::Vector2d, double>> candidates;
+    const Eigen::Vector2d start = refine(design, sites, angles, options);
+    candidates.emplace_back(start, score(design, sites, start, options));
     for (int g = 0; g < design.groups; ++g) {
       const Eigen::Vector2d candidate = refine(design, sites, placeGroup(design, g, sites[anchor].um), options);
-      const double s = score(design, sites, candidate, options);
-      if (s > best) {
-        best = s;
-        best_angles = candidate;
+      candidates.emplace_back(candidate, score(design, sites, candidate, options));
+    }
+    double best = -std::numeric_limits<double>::infinity();
+    for (const auto& c : candidates) best = std::max(best, c.second);
+    const Eigen::Vector2d reference = angles;
+    double nearest = std::numeric_limits<double>::infinity();
+    for (const auto& c : candidates) {
+      const double distance = (c.first - reference).squaredNorm();
+      if (c.second >= best - kTieScore && distance < nearest) {
+        nearest = distance;
+        angles = c.first;  // refined already
       }
     }
-    angles = best_angles;  // refined already
   } else {
     angles = refine(design, sites, angles, options);
   }
