@@ -1,78 +1,97 @@
 #!/usr/bin/env bash
 # README's "Your own unit" tables (method: docs/unit_calibration.md).
 #
-# Mask A of docs/results/irregular_masks.md (5 apertures, drawn with seed 11)
-# gets a family model trained on its design; units are drawn from it with the
-# as-built tolerances at SCALE x typical (fresh seed per unit); each unit is
-# calibrated on N of its own lab images (`dss calibrate-unit`, network frozen)
-# and, beside it, the baseline on the same N images (`dss calibrate`); both are
-# evaluated on 2000 other images of the same unit. The drift part moves the
-# mask of units calibrated on 400 images (20 um higher, 5 um along x) and
-# replays 200 reference images through `dss recalibrate`.
+# A sensor family (FAMILY: A, the 5-aperture mask of
+# docs/results/irregular_masks.md drawn with seed 11, or a shipped config:
+# thesis_ma, thesis_sa, wide_ma) gets a geometric-head model trained on its
+# design; units are drawn from it with the as-built tolerances at SCALE x
+# typical (fresh seeds per family and unit); each unit is calibrated on N of its
+# own lab images (`dss calibrate-unit`, network frozen) and, beside it, the
+# baseline on the same N images (`dss calibrate`); both are evaluated on 2000
+# other images of the same unit. The drift part moves the mask of units
+# calibrated on 400 images (20 um higher, 5 um along x) and replays 200
+# reference images through `dss recalibrate`.
 #
-#   scripts/unit_tables.sh             everything, then both tables
-#   scripts/unit_tables.sh table       the tables from what is there
-# Data in $DATA_DIR (default .ws/units_data); every file that exists is reused,
-# so a cut run continues where it stopped. Knobs (environment): UNITS, SCALES,
-# NS, DRIFT_UNITS, EPOCHS (family model), JOBS (units in parallel, default 2).
+#   FAMILY=thesis_ma scripts/unit_tables.sh         everything, then the tables
+#   FAMILY=thesis_ma scripts/unit_tables.sh table   the tables from what is there
+# Data in $DATA_DIR (default .ws/units_data/$FAMILY); every file that exists is
+# reused, so a cut run continues where it stopped. Knobs (environment): UNITS,
+# SCALES, NS, DRIFT_UNITS, EPOCHS (family model), JOBS (units in parallel,
+# default 2).
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
-DATA="${DATA_DIR:-$WS/units_data}"
-UNITS="${UNITS:-9501 9502 9503 9504 9505}"
+FAMILY="${FAMILY:-A}"
+# Seeds: design training, test and sigma images; the first unit (then +1 ...).
+case "$FAMILY" in
+  A) SEEDS=(9101 9102 9103 9501) ;;
+  thesis_ma) SEEDS=(9601 9602 9603 9611) ;;
+  thesis_sa) SEEDS=(9701 9702 9703 9711) ;;
+  wide_ma) SEEDS=(9801 9802 9803 9811) ;;
+  *) echo "unit_tables.sh: FAMILY must be A, thesis_ma, thesis_sa or wide_ma (got '$FAMILY')" >&2; exit 2 ;;
+esac
+DATA="${DATA_DIR:-$WS/units_data/$FAMILY}"
+first=${SEEDS[3]}
+UNITS="${UNITS:-$first $((first + 1)) $((first + 2)) $((first + 3)) $((first + 4))}"
 SCALES="${SCALES:-1 3}"
 NS="${NS:-0 10 25 50 100 400}"
-DRIFT_UNITS="${DRIFT_UNITS:-9501 9502 9503}"
+DRIFT_UNITS="${DRIFT_UNITS:-$first $((first + 1)) $((first + 2))}"
 EPOCHS="${EPOCHS:-2}"
 JOBS="${JOBS:-2}"
 mkdir -p "$DATA"
 cd "$DATA"
-log() { echo "[unit_tables] $*" >&2; }
+log() { echo "[unit_tables $FAMILY] $*" >&2; }
 quiet() { "$@" >/dev/null 2>>"$DATA/errors.log"; }
 
 family() {
-  [ -f A.yaml ] || quiet "$DSS" mask --sensor "$ROOT/config/sensors/thesis_sa.yaml" --set detector.width_px=640 \
-    --set detector.height_px=512 --set detector.pitch_um=2.2 --set mask.height_mm=2.5 \
-    --set detector_noise.bit_depth=10 --set threshold.level_fraction=0.5 --set fov.alpha_max_deg=8 \
-    --set fov.beta_max_deg=8 --apertures 5 --seed 11 --out A.yaml
-  [ -f A.train.bag ] || { log "design: 24000 training images"; quiet "$DSS" generate --sensor A.yaml --count 24000 --seed 9101 --out A.train.bag; }
-  [ -f A.sigma.bag ] || quiet "$DSS" generate --sensor A.yaml --count 2000 --seed 9103 --out A.sigma.bag
-  [ -f A.test.bag ] || quiet "$DSS" generate --sensor A.yaml --count 2000 --seed 9102 --out A.test.bag
-  if [ ! -f A.dssmodel ]; then
-    log "design: training the family model ($EPOCHS epochs; log A.train.log)"
-    "$DSS" train --data A.train.bag --epochs "$EPOCHS" --out A.dssmodel >A.train.log 2>&1
+  if [ "$FAMILY" = A ]; then
+    [ -f A.yaml ] || quiet "$DSS" mask --sensor "$ROOT/config/sensors/thesis_sa.yaml" --set detector.width_px=640 \
+      --set detector.height_px=512 --set detector.pitch_um=2.2 --set mask.height_mm=2.5 \
+      --set detector_noise.bit_depth=10 --set threshold.level_fraction=0.5 --set fov.alpha_max_deg=8 \
+      --set fov.beta_max_deg=8 --apertures 5 --seed 11 --out A.yaml
+  else
+    [ -f "$FAMILY.yaml" ] || cp "$ROOT/config/sensors/$FAMILY.yaml" "$FAMILY.yaml"
+  fi
+  local F=$FAMILY
+  [ -f $F.train.bag ] || { log "design: 24000 training images"; quiet "$DSS" generate --sensor $F.yaml --count 24000 --seed ${SEEDS[0]} --out $F.train.bag; }
+  [ -f $F.sigma.bag ] || quiet "$DSS" generate --sensor $F.yaml --count 2000 --seed ${SEEDS[2]} --out $F.sigma.bag
+  [ -f $F.test.bag ] || quiet "$DSS" generate --sensor $F.yaml --count 2000 --seed ${SEEDS[1]} --out $F.test.bag
+  if [ ! -f $F.dssmodel ]; then
+    log "design: training the family model ($EPOCHS epochs; log $F.train.log)"
+    "$DSS" train --data $F.train.bag --head geometric --epochs "$EPOCHS" --out $F.dssmodel >$F.train.log 2>&1
   fi
   # The spot-mismatch level of the design (what model_mismatch is judged against).
-  [ -f A.family.dssmodel ] || quiet "$DSS" calibrate-sigma --model A.dssmodel --data A.sigma.bag --out A.family.dssmodel
-  [ -f A.calib.yaml ] || quiet "$DSS" calibrate --data A.train.bag --max-images 1000 --out A.calib.yaml
+  [ -f $F.family.dssmodel ] || quiet "$DSS" calibrate-sigma --model $F.dssmodel --data $F.sigma.bag --out $F.family.dssmodel
+  [ -f $F.calib.yaml ] || quiet "$DSS" calibrate --data $F.train.bag --max-images 1000 --out $F.calib.yaml
   # The drifted unit: its mask 20 um higher and 5 um along x (the as-built draw of a seed stays the same).
-  [ -f A.drift.yaml ] || /usr/bin/python3 - <<'PY'
-import yaml
-c = yaml.safe_load(open("A.yaml"))
+  [ -f $F.drift.yaml ] || /usr/bin/python3 - "$F" <<'PY'
+import sys, yaml
+f = sys.argv[1]
+c = yaml.safe_load(open(f + ".yaml"))
 c["name"] += "_drifted"
 c["mask"]["height_mm"] += 0.020
 for a in c["mask"]["apertures"]:
     a["x_um"] += 5.0
-yaml.safe_dump(c, open("A.drift.yaml.tmp", "w"), sort_keys=False)
+yaml.safe_dump(c, open(f + ".drift.yaml.tmp", "w"), sort_keys=False)
 PY
-  [ -f A.drift.yaml ] || mv A.drift.yaml.tmp A.drift.yaml
-  [ -f design.sscnn.csv ] || quiet "$DSS" eval --data A.test.bag --estimator sscnn:A.family.dssmodel --crlb-samples 0 \
+  [ -f $F.drift.yaml ] || mv $F.drift.yaml.tmp $F.drift.yaml
+  [ -f design.sscnn.csv ] || quiet "$DSS" eval --data $F.test.bag --estimator sscnn:$F.family.dssmodel --crlb-samples 0 \
     --csv design.sscnn.csv
-  [ -f design.centroid.csv ] || quiet "$DSS" eval --data A.test.bag --estimator centroid:A.calib.yaml \
+  [ -f design.centroid.csv ] || quiet "$DSS" eval --data $F.test.bag --estimator centroid:$F.calib.yaml \
     --crlb-samples 0 --csv design.centroid.csv
 }
 
 # One unit: seed $1 at $2 x typical tolerances.
 unit() {
   local seed=$1 scale=$2 u="u$1_x$2"
-  local draw=(--sensor A.yaml --anomalies "as_built=$scale" --set as_built.aperture_diameter_sigma_um=0)
+  local draw=(--sensor $FAMILY.yaml --anomalies "as_built=$scale" --set as_built.aperture_diameter_sigma_um=0)
   [ -f "$u.lab.bag" ] || quiet "$DSS" generate "${draw[@]}" --count 400 --seed "$seed" --threads 1 --out "$u.lab.bag"
   [ -f "$u.test.bag" ] || quiet "$DSS" generate "${draw[@]}" --count 2000 --seed "$seed" --offset 100000 --threads 1 \
     --out "$u.test.bag"
   for n in $NS; do
-    local model=A.family.dssmodel calib=A.calib.yaml
+    local model=$FAMILY.family.dssmodel calib=$FAMILY.calib.yaml
     if [ "$n" != 0 ]; then
       model="$u.n$n.dssmodel" calib="$u.n$n.calib.yaml"
-      [ -f "$model" ] || quiet "$DSS" calibrate-unit --model A.family.dssmodel --data "$u.lab.bag" --max-images "$n" \
+      [ -f "$model" ] || quiet "$DSS" calibrate-unit --model $FAMILY.family.dssmodel --data "$u.lab.bag" --max-images "$n" \
         --out "$model" || true
       # The baseline may not calibrate a unit at all (no spot matched): recorded as a missing file.
       [ -f "$calib" ] || quiet "$DSS" calibrate --data "$u.lab.bag" --max-images "$n" --out "$calib" || true
@@ -89,9 +108,9 @@ unit() {
 drift() {
   local seed=$1 u="u$1_x1" d="d$1"
   local draw=(--anomalies as_built=1 --set as_built.aperture_diameter_sigma_um=0)
-  [ -f "$d.ref.bag" ] || quiet "$DSS" generate --sensor A.drift.yaml "${draw[@]}" --count 200 --seed "$seed" \
+  [ -f "$d.ref.bag" ] || quiet "$DSS" generate --sensor $FAMILY.drift.yaml "${draw[@]}" --count 200 --seed "$seed" \
     --offset 200000 --threads 1 --out "$d.ref.bag"
-  [ -f "$d.test.bag" ] || quiet "$DSS" generate --sensor A.drift.yaml "${draw[@]}" --count 2000 --seed "$seed" \
+  [ -f "$d.test.bag" ] || quiet "$DSS" generate --sensor $FAMILY.drift.yaml "${draw[@]}" --count 2000 --seed "$seed" \
     --offset 300000 --threads 1 --out "$d.test.bag"
   [ -f "$d.recal.dssmodel" ] || quiet "$DSS" recalibrate --model "$u.n400.dssmodel" --data "$d.ref.bag" \
     --out "$d.recal.dssmodel"
@@ -109,6 +128,7 @@ drift() {
 }
 
 tables() {
+  echo "Family $FAMILY ($DATA)"
   /usr/bin/python3 - "$UNITS" "$SCALES" "$NS" "$DRIFT_UNITS" <<'PY'
 import csv, math, os, sys
 units, scales, ns, drift_units = (a.split() for a in sys.argv[1:5])
@@ -170,7 +190,7 @@ PY
 if [ "${1:-}" != table ]; then
   family
   export -f unit quiet log
-  export DSS DATA NS
+  export DSS DATA NS FAMILY
   for k in $SCALES; do for s in $UNITS; do echo "$s $k"; done; done |
     xargs -P "$JOBS" -n 2 bash -c 'cd "$DATA" && unit "$0" "$1"'
   export -f drift
