@@ -184,6 +184,39 @@ TEST(UnitCalibration, MismatchFlagFiresOnAnUncalibratedUnitOnly) {
   }
 }
 
+// A family model used on units nobody calibrated: the tolerances' sigma is
+// the size of the errors drawn units actually give (RMS over units within a
+// factor 1.6 of it) and grows with the tolerances.
+TEST(UnitCalibration, ToleranceSigmaIsTheErrorOfDrawnUnits) {
+  const SensorConfig design = drawnDesign(45);
+  const Model model = untrainedModel(design);
+  const std::vector<UnitImage> images =
+      readUnitImages(model, render(SensorInstance::nominalOf(design), model.meta.input, 30, 21, false), 0);
+  const std::array<double, 2> typical = unitToleranceSigma(model, images, asBuiltTolerances(1.0));
+  const std::array<double, 2> twice = unitToleranceSigma(model, images, asBuiltTolerances(2.0));
+  SensorConfig drawn = design;
+  drawn.as_built = asBuiltTolerances(1.0);
+  drawn.as_built.aperture_diameter_sigma_um = 0.0;
+  double square_sum = 0.0;
+  int count = 0;
+  for (std::uint64_t seed = 1; seed <= 6; ++seed) {
+    const TrainingSet unit_images = render(SensorInstance::draw(drawn, seed), model.meta.input, 10, 30 + seed, false);
+    std::vector<const SparseSample*> samples;
+    for (const auto& s : unit_images.samples()) samples.push_back(&s);
+    const std::vector<Prediction> p = model.predictSamples(samples);
+    for (std::size_t i = 0; i < p.size(); ++i, ++count)
+      square_sum +=
+          std::pow(p[i].alpha_rad - samples[i]->alpha_rad, 2) + std::pow(p[i].beta_rad - samples[i]->beta_rad, 2);
+  }
+  const double rms = std::sqrt(square_sum / (2.0 * count));
+  const double sigma = std::sqrt(0.5 * (typical[0] * typical[0] + typical[1] * typical[1]));
+  std::printf("tolerance sigma at 1x: %.3g / %.3g deg, at 2x %.3g / %.3g deg; drawn units' RMS error %.3g deg\n",
+              radToDeg(typical[0]), radToDeg(typical[1]), radToDeg(twice[0]), radToDeg(twice[1]), radToDeg(rms));
+  for (std::size_t k = 0; k < 2; ++k) EXPECT_NEAR(twice[k] / typical[k], 2.0, 0.2);
+  EXPECT_GT(rms / sigma, 1.0 / 1.6);
+  EXPECT_LT(rms / sigma, 1.6);
+}
+
 TEST(UnitCalibration, RefusesAModelWithoutAGeometricHead) {
   const SensorConfig design = drawnDesign(41);
   HeadOptions head;

@@ -3,7 +3,8 @@
 // correction (src/train/bias_calibration), then refits the level of its
 // predicted uncertainty (src/train/sigma_calibration), records their input
 // envelope (model/input_envelope) and, for a geometric head, its spot-mismatch
-// level (model/unit_calibration), and writes the model.
+// level and optionally the unit tolerances' sigma (model/unit_calibration),
+// and writes the model.
 #include <cmath>
 #include <iostream>
 #include <optional>
@@ -46,6 +47,11 @@ int runCalibrateSigma(int argc, char** argv) {
            "average the estimates over the sensor's mirror images: 'keep' the model's, 'none', 'flips' (4 images) or "
            "'dihedral' (8; square detectors); the sensor must have the symmetry",
            "keep", false, false},
+          {"unit-tolerances", "SCALE",
+           "geometric head: add to every estimate's sigma the error the design's geometry makes on a unit built to "
+           "SCALE x typical tolerances (1: 20 um height, 10 um offset, 0.2 deg rotation, 0.1 deg tilt, 1 um per "
+           "aperture), for a family model used on units it was not calibrated on; 'keep' the model's geometry sigma",
+           "keep", false, false},
       });
   if (!args.parse(argc, argv, 2)) return 0;
   // Checked before the bags are read, which can take minutes.
@@ -65,8 +71,18 @@ int runCalibrateSigma(int argc, char** argv) {
       throw UsageError(std::string("dss calibrate-sigma: --symmetry: ") + e.what() + " (or 'keep')");
     }
   }
+  std::optional<double> unit_tolerances;  // none: keep the model's geometry sigma
+  if (args.get("unit-tolerances") != "keep") {
+    unit_tolerances = args.getDouble("unit-tolerances");
+    if (!(*unit_tolerances >= 0.0) || !std::isfinite(*unit_tolerances))
+      throw UsageError("dss calibrate-sigma: --unit-tolerances must be 'keep' or a non-negative scale, not " +
+                       args.get("unit-tolerances"));
+  }
   sparse::configureThreads(1, 2);
   Model model = loadModel(args.get("model"));
+  if (unit_tolerances && !model.meta.arch.geometric_head)
+    throw UsageError("dss calibrate-sigma: --unit-tolerances needs a model with a geometric head (" +
+                     args.get("model") + " has none)");
   const SensorConfig sensor = parseSensorConfig(model.meta.sensor_yaml, args.get("model") + " (sensor)");
   if (symmetry && *symmetry != InferenceSymmetry::kNone && model.meta.arch.geometric_head)
     throw UsageError("dss calibrate-sigma: --symmetry " + args.get("symmetry") +
@@ -101,6 +117,14 @@ int runCalibrateSigma(int argc, char** argv) {
       std::cerr << "spot mismatch level not measured: " << e.what() << "\n";
     }
   }
+  if (unit_tolerances) {
+    // Propagated on the same images; the sigma scale above was fitted without it.
+    model.meta.geometry_sigma_rad =
+        unitToleranceSigma(model, readUnitImages(model, data.samples, 100), asBuiltTolerances(*unit_tolerances));
+    std::cerr << "unit tolerances x" << *unit_tolerances << ": geometry sigma "
+              << radToDeg(model.meta.geometry_sigma_rad[0]) << " / " << radToDeg(model.meta.geometry_sigma_rad[1])
+              << " deg\n";
+  }
   recordInputEnvelope(model.meta, envelope);
   saveModel(model, args.get("out"));
   std::cerr << "wrote " << args.get("out") << "\n";
@@ -130,6 +154,8 @@ int runCalibrateSigma(int argc, char** argv) {
   if (mismatch)
     std::cout << ", \"mismatch_level\": " << mismatch->level << ", \"mismatch_threshold\": " << mismatch->threshold
               << ", \"mismatch_flagged_fraction\": " << mismatch->flagged_fraction;
+  std::cout << ", \"geometry_sigma_deg\": [" << radToDeg(model.meta.geometry_sigma_rad[0]) << ", "
+            << radToDeg(model.meta.geometry_sigma_rad[1]) << "]";
   std::cout << ", \"scale_alpha\": " << c.scale_alpha << ", \"scale_beta\": " << c.scale_beta
             << coverage("before_alpha", c.alpha_before) << coverage("before_beta", c.beta_before)
             << coverage("after_alpha", c.alpha_after) << coverage("after_beta", c.beta_after) << "}" << std::endl;

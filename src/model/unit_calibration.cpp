@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <functional>
 #include <stdexcept>
 
 #include "digital_sun_sensor/baseline/geometry_fit.h"
@@ -199,16 +200,13 @@ double weightedRms(const GeometryFit& fit, const Eigen::VectorXd& p, const std::
   return weight > 0.0 ? std::sqrt(sum / weight) : 0.0;
 }
 
-// RMS change of each image's solved angles [rad] when the geometry is drawn
-// from the fit's covariance about p: the error the fitted geometry adds to
-// every estimate.
-std::array<double, 2> geometrySigma(const GeometryFit& fit, const Eigen::VectorXd& p, const Eigen::MatrixXd& covariance,
-                                    const geometric::Design& design, const std::vector<UnitImage>& images,
-                                    const std::vector<Eigen::Vector2d>& targets, const geometric::Options& options) {
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(covariance);
-  const Eigen::MatrixXd root = eigen.eigenvectors() * eigen.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal();
-  geometric::Design geometry = design;
-  geometry.mask = fit.apply(p);
+// RMS change per axis of the images' solved angles [rad] (up to
+// kSigmaImages, evenly spaced) when their spots are solved through kSigmaDraws
+// geometries `draw` makes (fixed seed: repeatable) instead of `design`'s,
+// divided by `scale`.
+std::array<double, 2> solveChangeRms(const geometric::Design& design, const std::vector<UnitImage>& images,
+                                     const std::vector<Eigen::Vector2d>& targets, const geometric::Options& options,
+                                     const std::function<MaskGeometry(Rng&)>& draw, double scale) {
   std::vector<std::vector<geometric::Site>> sites;
   std::vector<Eigen::Vector2d> reference, solved;
   const std::size_t n = std::min(images.size(), kSigmaImages);
@@ -219,22 +217,37 @@ std::array<double, 2> geometrySigma(const GeometryFit& fit, const Eigen::VectorX
     for (std::size_t s = 0; s < images[i].site_um.size(); ++s)
       sites.back().push_back({images[i].site_um[s], images[i].site_weight[s]});
     reference.push_back(targets[i]);
-    solved.push_back(geometric::solveImage(geometry, sites.back(), targets[i], options).angles_rad);
+    solved.push_back(geometric::solveImage(design, sites.back(), targets[i], options).angles_rad);
   }
   if (sites.empty()) return {0.0, 0.0};
   Rng rng(kSigmaSeed);
+  geometric::Design geometry = design;
   Eigen::Array2d sum = Eigen::Array2d::Zero();
-  Eigen::VectorXd z(p.size());
   for (int d = 0; d < kSigmaDraws; ++d) {
-    for (Eigen::Index k = 0; k < z.size(); ++k) z[k] = rng.normal();
-    geometry.mask = fit.apply(p + kSigmaStep * (root * z));
+    geometry.mask = draw(rng);
     for (std::size_t i = 0; i < sites.size(); ++i)
-      sum += ((geometric::solveImage(geometry, sites[i], reference[i], options).angles_rad - solved[i]) / kSigmaStep)
+      sum += ((geometric::solveImage(geometry, sites[i], reference[i], options).angles_rad - solved[i]) / scale)
                  .array()
                  .square();
   }
   const Eigen::Array2d sigma = (sum / static_cast<double>(kSigmaDraws * sites.size())).sqrt();
   return {sigma[0], sigma[1]};
+}
+
+// The geometry sigma of a fit: geometries drawn from its covariance about p.
+std::array<double, 2> geometrySigma(const GeometryFit& fit, const Eigen::VectorXd& p, const Eigen::MatrixXd& covariance,
+                                    const geometric::Design& design, const std::vector<UnitImage>& images,
+                                    const std::vector<Eigen::Vector2d>& targets, const geometric::Options& options) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(covariance);
+  const Eigen::MatrixXd root = eigen.eigenvectors() * eigen.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+  geometric::Design fitted = design;
+  fitted.mask = fit.apply(p);
+  Eigen::VectorXd z(p.size());
+  const auto draw = [&](Rng& rng) {
+    for (Eigen::Index k = 0; k < z.size(); ++k) z[k] = rng.normal();
+    return fit.apply(p + kSigmaStep * (root * z));
+  };
+  return solveChangeRms(fitted, images, targets, options, draw, kSigmaStep);
 }
 
 double angleRmsDeg(const std::vector<ImageRead>& reads) {
@@ -340,6 +353,26 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   model.meta.geometry_sigma_rad = report.geometry_sigma_rad;
   report.after = geometry.maskGeometry();
   return report;
+}
+
+std::array<double, 2> unitToleranceSigma(const Model& model, const std::vector<UnitImage>& images,
+                                         const AsBuiltConfig& tolerances) {
+  if (!model.meta.arch.geometric_head)
+    throw std::invalid_argument("unit tolerance sigma: the model's head is not geometric");
+  const geometric::Design design = geometric::designOf(*model.net->geometry());
+  const auto draw = [&](Rng& rng) {
+    MaskGeometry unit = design.mask;
+    unit.height_um += tolerances.height_sigma_um * rng.normal();
+    unit.offset_x_um += tolerances.offset_sigma_um * rng.normal();
+    unit.offset_y_um += tolerances.offset_sigma_um * rng.normal();
+    unit.rotation_rad += degToRad(tolerances.rotation_sigma_deg) * rng.normal();
+    unit.tilt_x_rad += degToRad(tolerances.tilt_sigma_deg) * rng.normal();
+    unit.tilt_y_rad += degToRad(tolerances.tilt_sigma_deg) * rng.normal();
+    for (auto& a : unit.apertures_um)
+      a += tolerances.aperture_position_sigma_um * Eigen::Vector2d(rng.normal(), rng.normal());
+    return unit;
+  };
+  return solveChangeRms(design, images, solvedTargets(model, images), solveOptions(model), draw, 1.0);
 }
 
 std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::Mat>& images,

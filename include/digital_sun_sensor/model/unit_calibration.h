@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/sim/sensor_config.h"
 #include "digital_sun_sensor/train/training_set.h"
 
 namespace dss {
@@ -65,6 +66,15 @@ struct UnitCalibrationReport {
 
   std::string toYaml() const;  // a YAML map, stored in the model (ModelMetadata::unit_yaml)
 };
+
+// The error a model whose geometry is its design's makes on a unit built to
+// `tolerances`: the RMS change per axis [rad] of the images' solved angles
+// when solved through geometries drawn from them (height, offset, rotation,
+// tilt, aperture positions; fixed seed). A family model meant for units it
+// was not calibrated on carries it as its geometry sigma (dss calibrate-sigma
+// --unit-tolerances), which a unit calibration replaces by its fit's own.
+std::array<double, 2> unitToleranceSigma(const Model& model, const std::vector<UnitImage>& images,
+                                         const AsBuiltConfig& tolerances);
 
 // The network's reading of images of the unit (checked against the model's
 // input spec; images without a lit pixel left out) with their reference
