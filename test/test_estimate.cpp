@@ -153,6 +153,16 @@ TEST(Screen, EstimatesBeyondTheEnvelopeAreRejected) {
   EXPECT_FALSE(unsure.valid);
   EXPECT_EQ(unsure.status, "out_of_distribution");
 
+  // A family model's unit-tolerance sigma (0.2 deg) is shared by every
+  // estimate: the image's own (0.001 deg) is what is judged.
+  SunEstimate family = validEstimate(1.0, -2.0, std::hypot(0.001, 0.2));
+  family.model_sigma_rad = {degToRad(0.2), degToRad(0.2)};
+  screenEstimate(&family, sensor, options);
+  EXPECT_TRUE(family.valid);
+  family.model_sigma_rad = {0.0, 0.0};
+  screenEstimate(&family, sensor, options);
+  EXPECT_EQ(family.status, "out_of_distribution");
+
   SunEstimate outside = validEstimate(4.9, 0.0, 0.001);
   screenEstimate(&outside, sensor, options);
   EXPECT_FALSE(outside.valid);

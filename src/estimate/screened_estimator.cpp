@@ -94,7 +94,9 @@ std::string screenImage(const cv::Mat& image, int max_code, const ScreenOptions&
 void screenEstimate(SunEstimate* estimate, const SensorConfig& sensor, const ScreenOptions& options) {
   if (!estimate->valid) return;
   const double max_var = std::pow(options.max_sigma_deg * kRadPerDeg, 2);
-  const double var_a = estimate->covariance[0], var_b = estimate->covariance[3];
+  // The image's own variance: the model's shared part says nothing of the image.
+  const double var_a = estimate->covariance[0] - std::pow(estimate->model_sigma_rad[0], 2);
+  const double var_b = estimate->covariance[3] - std::pow(estimate->model_sigma_rad[1], 2);
   if (!std::isfinite(estimate->alpha_rad) || !std::isfinite(estimate->beta_rad)) {
     estimate->valid = false;
     estimate->status = status::kNotFinite;

@@ -92,6 +92,7 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
     e.covariance = {p.alpha_variance_rad2, 0.0, 0.0, p.beta_variance_rad2};
     e.subfov_class = p.subfov_class;
     e.spot_mismatch = p.spot_mismatch;
+    e.model_sigma_rad = impl_->model.meta.geometry_sigma_rad;
     e.valid = p.active_sites > 0;
     if (!e.valid) {
       e.status = status::kNoSun;

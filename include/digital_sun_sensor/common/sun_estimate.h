@@ -22,6 +22,11 @@ struct SunEstimate {
   // over its calibrated level (Prediction::spot_mismatch; ~1 on the sensor
   // it was calibrated for); 0 where not measured.
   double spot_mismatch = 0.0;
+  // The part of the covariance's diagonal that every estimate of the model
+  // shares, as a sigma per axis [rad]: its geometry's uncertainty (a unit
+  // calibration's, or a family model's unit tolerances). What is left is
+  // the image's own, which out_of_distribution judges.
+  std::array<double, 2> model_sigma_rad{};
 };
 
 class SunEstimator {
