@@ -215,9 +215,16 @@ for k in scales:
 print()
 print("| unit | calibrated (400 lab images) mean α / β (deg) | drifted, not recalibrated | recalibrated from 200 references | with 5 % of the references 2–5° wrong | baseline calibrated on the 200 references |")
 print("|---|---|---|---|---|---|")
+def cell(r):
+    if r is None:
+        return "—"
+    out = "%s / %s" % (fmt(r["a"]), fmt(r["b"]))
+    return out + (" (%s / %s where the baseline answers)" % tuple(map(fmt, r["common"])) if r["common"] else "")
 for u in drift_units:
-    row = [stats("u%s_x1.n400.sscnn.csv" % u)] + [stats("d%s.%s.csv" % (u, n)) for n in ("before", "recal", "outl", "centroid_ref")]
-    print("| %s | %s |" % (u, " | ".join("—" if r is None else "%s / %s" % (fmt(r["a"]), fmt(r["b"])) for r in row)))
+    ref = "d%s.centroid_ref.csv" % u
+    row = [stats("u%s_x1.n400.sscnn.csv" % u, "u%s_x1.n400.centroid.csv" % u)] + \
+        [stats("d%s.%s.csv" % (u, n), ref) for n in ("before", "recal", "outl")] + [stats(ref)]
+    print("| %s | %s |" % (u, " | ".join(map(cell, row))))
 PY
 }
 
