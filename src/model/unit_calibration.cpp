@@ -39,6 +39,7 @@ struct ImageRead {
   UnitImage image;  // sites and truth
   Prediction prediction;
   double residual_per_dof = 0.0;
+  std::size_t input = 0;  // index among the images read
 };
 
 void requireGeometricHead(const Model& model, const TrainingSet& data, const std::string& what) {
@@ -93,6 +94,7 @@ std::vector<ImageRead> readImages(const Model& model, std::size_t count, const E
       reads[b].image.beta_rad = angles[1];
       reads[b].prediction = predictions[b];
       reads[b].residual_per_dof = dof[static_cast<std::int64_t>(b)].item<double>();
+      reads[b].input = first + b;
       if (predictions[b].active_sites > 0) out.push_back(std::move(reads[b]));
     }
   }
@@ -345,6 +347,7 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   std::vector<bool> used(images.size(), false);
   for (const auto& o : inliers) used[static_cast<std::size_t>(o.sample)] = true;
   report.images_used = static_cast<int>(std::count(used.begin(), used.end(), true));
+  report.image_used = used;
   report.spot_rms_um_after = weightedRms(fine, p, inliers);
   const Eigen::MatrixXd covariance = fine.covariance(p, inliers);
   report.standard_errors = GeometryFit::standardErrors(covariance);
@@ -415,6 +418,8 @@ UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const
   const double before_deg = angleRmsDeg(reads);
   UnitCalibrationReport report = fitUnitGeometry(model, images, options);
   report.images = static_cast<int>(samples.size());
+  for (std::size_t k = 0; k < reads.size(); ++k)
+    if (report.image_used[k]) report.whole_spot_samples.push_back(samples[reads[k].input]);
   report.angle_rms_deg_before = before_deg;
   report.angle_rms_deg_after = angleRmsDeg(readSamples(model, samples));
   YAML::Node record = YAML::Load(report.toYaml());

@@ -45,8 +45,13 @@ struct UnitCalibrationOptions {
 
 struct UnitCalibrationReport {
   int images = 0;
-  int images_used = 0;  // with at least one whole spot read
-  int spots = 0;        // fitted
+  int images_used = 0;           // with at least one whole spot read
+  std::vector<bool> image_used;  // per image given to fitUnitGeometry
+  // calibrateUnit: the samples with a whole spot in the fit, what a smooth
+  // angle correction may be fitted to (a spot cut by the detector's edge
+  // has a bias of its own, which no smooth function of the angles takes).
+  std::vector<const SparseSample*> whole_spot_samples;
+  int spots = 0;  // fitted
   int outliers = 0;
   int iterations = 0;
   std::vector<std::string> free_parameters;
