@@ -190,8 +190,7 @@ TEST(UnitCalibration, MismatchFlagFiresOnAnUncalibratedUnitOnly) {
 TEST(UnitCalibration, ToleranceSigmaIsTheErrorOfDrawnUnits) {
   const SensorConfig design = drawnDesign(45);
   const Model model = untrainedModel(design);
-  const std::vector<UnitImage> images =
-      readUnitImages(model, render(SensorInstance::nominalOf(design), model.meta.input, 30, 21, false), 0);
+  const TrainingSet images = render(SensorInstance::nominalOf(design), model.meta.input, 30, 21, false);
   const std::array<double, 2> typical = unitToleranceSigma(model, images, asBuiltTolerances(1.0));
   const std::array<double, 2> twice = unitToleranceSigma(model, images, asBuiltTolerances(2.0));
   SensorConfig drawn = design;

@@ -119,8 +119,7 @@ int runCalibrateSigma(int argc, char** argv) {
   }
   if (unit_tolerances) {
     // Propagated on the same images; the sigma scale above was fitted without it.
-    model.meta.geometry_sigma_rad =
-        unitToleranceSigma(model, readUnitImages(model, data.samples, 100), asBuiltTolerances(*unit_tolerances));
+    model.meta.geometry_sigma_rad = unitToleranceSigma(model, data.samples, asBuiltTolerances(*unit_tolerances));
     std::cerr << "unit tolerances x" << *unit_tolerances << ": geometry sigma "
               << radToDeg(model.meta.geometry_sigma_rad[0]) << " / " << radToDeg(model.meta.geometry_sigma_rad[1])
               << " deg\n";

@@ -358,10 +358,9 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   return report;
 }
 
-std::array<double, 2> unitToleranceSigma(const Model& model, const std::vector<UnitImage>& images,
-                                         const AsBuiltConfig& tolerances) {
-  if (!model.meta.arch.geometric_head)
-    throw std::invalid_argument("unit tolerance sigma: the model's head is not geometric");
+std::array<double, 2> unitToleranceSigma(const Model& model, const TrainingSet& data, const AsBuiltConfig& tolerances) {
+  requireGeometricHead(model, data, "unit tolerance sigma");
+  const std::vector<UnitImage> images = readUnitImages(model, data, kSigmaImages);
   const geometric::Design design = geometric::designOf(*model.net->geometry());
   const auto draw = [&](Rng& rng) {
     MaskGeometry unit = design.mask;

@@ -73,13 +73,13 @@ struct UnitCalibrationReport {
 };
 
 // The error a model whose geometry is its design's makes on a unit built to
-// `tolerances`: the RMS change per axis [rad] of the images' solved angles
-// when solved through geometries drawn from them (height, offset, rotation,
-// tilt, aperture positions; fixed seed). A family model meant for units it
+// `tolerances`: the RMS change per axis [rad] of the solved angles of up to
+// 100 of the labelled images (evenly spaced) when solved through geometries
+// drawn from them (height, offset, rotation, tilt, aperture positions; fixed
+// seed). A family model meant for units it
 // was not calibrated on carries it as its geometry sigma (dss calibrate-sigma
 // --unit-tolerances), which a unit calibration replaces by its fit's own.
-std::array<double, 2> unitToleranceSigma(const Model& model, const std::vector<UnitImage>& images,
-                                         const AsBuiltConfig& tolerances);
+std::array<double, 2> unitToleranceSigma(const Model& model, const TrainingSet& data, const AsBuiltConfig& tolerances);
 
 // The network's reading of images of the unit (checked against the model's
 // input spec; images without a lit pixel left out) with their reference
