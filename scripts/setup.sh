@@ -23,6 +23,8 @@ PACKAGES=(
   libtorch-dev libopenblas0-pthread libopenblas-pthread-dev libeigen3-dev libfftw3-dev
   # images, config, tests
   libopencv-dev libyaml-cpp-dev googletest libgtest-dev
+  # fuzzing (scripts/fuzz.sh): clang with libFuzzer and the sanitizers
+  clang libclang-rt-14-dev
 )
 
 missing=()
@@ -50,6 +52,9 @@ if command -v update-alternatives >/dev/null; then
     fi
   fi
 fi
+
+# DSS_SETUP_PACKAGES_ONLY=1: stop here (scripts/fuzz.sh builds its own workspace).
+if [[ "${DSS_SETUP_PACKAGES_ONLY:-0}" == 1 ]]; then exit 0; fi
 
 # Catkin workspace with the repository linked in as its only package.
 mkdir -p "$DSS_WS/src"

@@ -7,7 +7,7 @@
 set -uo pipefail
 
 # The unit-test executables of "fast" (test/CMakeLists.txt).
-FAST_TESTS=(test_core test_baseline test_nn)
+FAST_TESTS=(test_core test_baseline test_nn test_fuzz_regressions)
 targets=(run_tests)
 if [[ "${1:-}" == fast ]]; then
   targets=()

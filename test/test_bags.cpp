@@ -16,11 +16,13 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <string>
 
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/ros/bag_io.h"
+#include "digital_sun_sensor/ros/conversions.h"
 
 namespace {
 
@@ -369,6 +371,38 @@ TEST(Messages, SunVectorTruthIsReadInTheSensorFrameOnly) {
 }  // namespace
 
 // The message's STATUS_* constants and the core's codes are one list.
+// An image payload's length fields are checked against its bytes before
+// anything is allocated; sizes over the limits are refused by name.
+TEST(Messages, ImagePayloadsAndFieldsAreBounded) {
+  cv::Mat image(4, 6, CV_16UC1, cv::Scalar(300));
+  const sensor_msgs::Image msg = dss::toImageMsg(image, std_msgs::Header());
+  std::vector<std::uint8_t> bytes(ros::serialization::serializationLength(msg));
+  ros::serialization::OStream out(bytes.data(), static_cast<std::uint32_t>(bytes.size()));
+  ros::serialization::serialize(out, msg);
+  const cv::Mat back = dss::imageFromMsg(dss::imageMsgFromBytes(bytes.data(), bytes.size()));
+  EXPECT_EQ(cv::countNonZero(back != image), 0);
+
+  auto errorOf = [](const std::function<void()>& f) -> std::string {
+    try {
+      f();
+    } catch (const std::invalid_argument& e) {
+      return e.what();
+    }
+    return "";
+  };
+  // The data length field (the last 4 + 48 bytes) claims 4 GB.
+  std::vector<std::uint8_t> lying = bytes;
+  const std::size_t length_at = bytes.size() - image.total() * 2 - 4;
+  lying[length_at] = lying[length_at + 1] = lying[length_at + 2] = lying[length_at + 3] = 0xff;
+  EXPECT_NE(errorOf([&] { dss::imageMsgFromBytes(lying.data(), lying.size()); }).find("over the limit"),
+            std::string::npos);
+  EXPECT_NE(errorOf([&] { dss::imageMsgFromBytes(bytes.data(), bytes.size() - 1); }).find("truncated in 'data'"),
+            std::string::npos);
+  sensor_msgs::Image wide = msg;
+  wide.width = 100000;
+  EXPECT_NE(errorOf([&] { dss::imageFromMsg(wide); }).find("over the limit of 8192 px"), std::string::npos);
+}
+
 TEST(Messages, StatusConstantsAreTheCoreCodes) {
   using digital_sun_sensor::SunAngles;
   const std::vector<std::string> message = {SunAngles::STATUS_NO_SUN,

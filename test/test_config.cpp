@@ -1,7 +1,9 @@
 // Sensor configs: the shipped ones load; every kind of bad config gets an
 // error that names the file and the key.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <cstdio>
 #include <fstream>
 #include <regex>
 #include <sstream>
@@ -110,6 +112,51 @@ TEST(SensorConfig, MissingFileIsNamed) {
   } catch (const ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("/nonexistent/sensor.yaml"), std::string::npos);
   }
+}
+
+// What a config may ask to allocate is bounded, each limit refused by name
+// before anything is built (limits.h).
+TEST(SensorConfig, ResourceLimitsAreRefusedByName) {
+  auto expectError = [](const std::string& message, const std::vector<std::string>& needles) {
+    ASSERT_FALSE(message.empty()) << "expected an error";
+    for (const auto& n : needles) EXPECT_NE(message.find(n), std::string::npos) << message << " lacks " << n;
+  };
+  const std::string good = readFile(shipped("thesis_sa"));
+  const std::string one = "    - {x_um: 0.0, y_um: 0.0, shape: circle, diameter_um: 100.0}\n";
+  std::string many;
+  for (int i = 0; i < 5000; ++i) many += one;
+  std::string too_many_apertures = good;
+  too_many_apertures.insert(too_many_apertures.find(one), many);
+  expectError(errorOf(too_many_apertures), {"mask.apertures", "5001 apertures, over the limit of 4096"});
+
+  // A "billion laughs" document: 9 levels of 10 aliases each.
+  std::string bomb = "a0: &a0 [x, x, x, x, x, x, x, x, x, x]\n";
+  for (int level = 1; level < 10; ++level) {
+    const std::string prev = "*a" + std::to_string(level - 1);
+    bomb += "a" + std::to_string(level) + ": &a" + std::to_string(level) + " [" + prev;
+    for (int k = 1; k < 10; ++k) bomb += ", " + prev;
+    bomb += "]\n";
+  }
+  expectError(errorOf(bomb), {"bad.yaml", "more than 1000000 YAML nodes"});
+  expectError(errorOf(good, {"name=" + bomb.substr(0, 60) + "}"}), {"override"});
+
+  expectError(errorOf(good, {"optics.psf_node_step_deg=0.001"}),
+              {"optics.psf_node_step_deg", "diffraction nodes", "over the limit of 20000"});
+  expectError(errorOf(good, {"anomalies.hot_pixels.count=300000"}), {"anomalies.hot_pixels.count"});
+  expectError(errorOf(good, {"detector.width_px=100000"}), {"detector.width_px", "(limit)"});
+  expectError(errorOf(good, {"optics.grid_size=8192"}), {"optics.grid_size", "(limit)"});
+
+  // A file over the YAML size limit is refused before it is read (sparse file).
+  const std::string big = ::testing::TempDir() + "dss_big_config.yaml";
+  { std::ofstream(big) << good; }
+  ASSERT_EQ(::truncate(big.c_str(), 17 << 20), 0);
+  try {
+    loadSensorConfig(big);
+    ADD_FAILURE() << "a 17 MiB config loaded";
+  } catch (const ConfigError& e) {
+    expectError(e.what(), {big, "over the limit of 16.0 MiB"});
+  }
+  std::remove(big.c_str());
 }
 
 }  // namespace

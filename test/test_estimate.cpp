@@ -10,12 +10,15 @@
 #include <random>
 
 #include "digital_sun_sensor/baseline/calibration.h"
+#include "digital_sun_sensor/baseline/centroid_estimator.h"
 #include "digital_sun_sensor/baseline/spot_extraction.h"
+#include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/common/spike_filter.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/eval/uncertainty.h"
+#include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
@@ -343,6 +346,69 @@ TEST(Uncertainty, SiteSigmaLawFollowsTheLitSiteCount) {
   EXPECT_LE(std::abs(fitSiteSigmaLaw({flat}).exponent), 0.1);
   EXPECT_FALSE(fitSiteSigmaLaw({{{1e-5, 100}}}).active());  // too few samples
   EXPECT_EQ(SiteSigmaLaw{}.factor(10.0), 1.0);
+}
+
+// Every estimate status an image can cause has an image here that causes it,
+// through the estimators and screens calibration_node runs. (Elsewhere:
+// out_of_distribution from lit pixels, InputEnvelope.SscnnEstimatorFlagsImagesOutsideIt;
+// ambiguous_aperture, LatticeHead tests; bad_image and no_estimator over ROS,
+// calibration_input.test.)
+TEST(Status, EveryImageStatusHasAnImageThatCausesIt) {
+  const SensorConfig sa =
+      loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml", {"optics.psf_node_step_deg=3"});
+  const Renderer renderer(SensorInstance::draw(sa, 1));
+  auto sunAt = [&](double alpha_deg, double beta_deg) {
+    return renderer.render(sunVectorFromAngles(alpha_deg * kRadPerDeg, beta_deg * kRadPerDeg), 7, nullptr,
+                           RenderOptions{});
+  };
+  auto code = [](const SunEstimate& e) { return status::statusCode(e.status); };
+  const SensorConfig design = shipped("thesis_sa");
+  ScreenedEstimator sscnn(std::make_unique<SscnnEstimator>(modelPath(), &design), ScreenOptions{});
+  ScreenedEstimator centroid(std::make_unique<CentroidEstimator>(loadCalibration(calibrationPath())), ScreenOptions{});
+
+  const cv::Mat dark(512, 512, CV_8UC1, cv::Scalar(0));  // eclipse
+  EXPECT_EQ(code(sscnn.estimate({dark})[0]), status::kNoSun);
+  EXPECT_EQ(code(centroid.estimate({dark})[0]), status::kNoSun);
+  const cv::Mat blinded(512, 512, CV_8UC1, cv::Scalar(255));
+  EXPECT_EQ(code(sscnn.estimate({blinded})[0]), status::kSaturated);
+  const cv::Mat small(256, 256, CV_8UC1, cv::Scalar(0));
+  EXPECT_EQ(code(sscnn.estimate({small})[0]), status::kBadImage);
+  EXPECT_EQ(code(centroid.estimate({small})[0]), status::kBadImage);
+
+  // The sun inside the detector's view but outside the field of view a
+  // sensor declares (narrowed to 3 deg here), through the screen.
+  SunEstimate beyond = sscnn.estimate({sunAt(4.0, 0.0)})[0];
+  ASSERT_TRUE(beyond.valid) << beyond.status;
+  SensorConfig narrow = design;
+  narrow.fov.alpha_max_deg = 3.0;
+  screenEstimate(&beyond, narrow, ScreenOptions{});
+  EXPECT_FALSE(beyond.valid);
+  EXPECT_EQ(code(beyond), status::kOutsideFov) << beyond.status;
+
+  // The baseline's spot cut by the detector edge.
+  const SunEstimate cut = centroid.estimate({sunAt(4.45, 0.0)})[0];
+  EXPECT_FALSE(cut.valid);
+  EXPECT_EQ(code(cut), status::kSpotAtEdge) << cut.status;
+
+  // A geometric-head model whose calibrated spot residual level the image's
+  // spots exceed by far: model_mismatch (the level is set tiny here; a real
+  // case is an uncalibrated unit, UnitCalibration tests).
+  const SensorConfig ma =
+      loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_ma.yaml", {"optics.psf_node_step_deg=3"});
+  HeadOptions geometric;
+  geometric.head = "geometric";
+  Model model = createModel(ma, archPreset("resnet10_w16", ma.numSubFovClasses()), 1, geometric);
+  model.meta.mismatch_level = 1e-12;
+  model.meta.mismatch_threshold = 3.0;
+  const std::string path = ::testing::TempDir() + "dss_status_geometric.dssmodel";
+  saveModel(model, path);
+  const Renderer ma_renderer(SensorInstance::draw(ma, 1));
+  const cv::Mat ma_image =
+      ma_renderer.render(sunVectorFromAngles(0.5 * kRadPerDeg, -0.3 * kRadPerDeg), 7, nullptr, RenderOptions{});
+  const SunEstimate mismatch = SscnnEstimator(path, &ma).estimate({ma_image})[0];
+  EXPECT_FALSE(mismatch.valid);
+  EXPECT_EQ(code(mismatch), status::kModelMismatch) << mismatch.status;
+  std::remove(path.c_str());
 }
 
 }  // namespace

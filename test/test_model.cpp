@@ -305,6 +305,25 @@ TEST(ModelFile, RejectsCorruptTruncatedWrongArchitectureAndWrongSensor) {
 
   EXPECT_THROW(loadModel("/nonexistent/dir/model.dssmodel"), ModelError);
   EXPECT_THROW(createModel(c, "resnet99"), std::invalid_argument);
+
+  // A network shape over the limits is refused before the network is built
+  // (a damaged width would otherwise allocate gigabytes).
+  auto withMetadata = [&](const std::string& from, const std::string& to) {
+    std::string meta = metadataToYaml(m.meta);
+    const auto at = meta.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    return meta.replace(at, from.size(), to);
+  };
+  auto metadataError = [&](const std::string& text) -> std::string {
+    try {
+      metadataFromYaml(text, "damaged");
+    } catch (const ModelError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  EXPECT_TRUE(contains(metadataError(withMetadata("widths: [", "widths: [100000")), "(limit)"));
+  EXPECT_TRUE(contains(metadataError(withMetadata("max_sites: ", "max_sites: 99")), "over the limits"));
 }
 
 TEST(Sscnn, TinyNetworkOverfitsSimulatedImages) {

@@ -44,9 +44,9 @@ TEST(Report, SmallReportHasEveryPlotAndFigure) {
   published.baseline = &published_baseline;
   options.published_images = 20;
   const std::string summary = writeReport(sensor, sscnn, &baseline, options, {}, &published);
-  EXPECT_EQ(readFile(options.out_dir + "/summary.json"), summary + "\n");
+  EXPECT_EQ(readFile(options.out_dir + "/summary.json", 1 << 20), summary + "\n");
 
-  const std::string html = readFile(options.out_dir + "/index.html");
+  const std::string html = readFile(options.out_dir + "/index.html", 16 << 20);
   std::vector<std::string> plots;
   for (std::size_t at = summary.find(".png\""); at != std::string::npos; at = summary.find(".png\"", at + 1)) {
     const std::size_t start = summary.rfind('"', at) + 1;
@@ -54,7 +54,7 @@ TEST(Report, SmallReportHasEveryPlotAndFigure) {
   }
   EXPECT_EQ(plots.size(), 4u + 3u + 10u);  // 4 maps, histogram, error vs truth, reliability, 10 sweeps
   for (const auto& p : plots) {
-    const std::string bytes = readFile(options.out_dir + "/" + p);
+    const std::string bytes = readFile(options.out_dir + "/" + p, 16 << 20);
     ASSERT_GT(bytes.size(), 8u) << p;
     EXPECT_EQ(bytes.substr(0, 8), std::string("\x89PNG\r\n\x1a\n", 8)) << p;
     const cv::Mat image = cv::imread(options.out_dir + "/" + p);

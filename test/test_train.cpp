@@ -11,6 +11,7 @@
 #include <fstream>
 
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/eval/uncertainty.h"
 #include "digital_sun_sensor/model/model.h"
@@ -93,7 +94,7 @@ TEST(Train, ValidationErrorFallsWellBelowUntrained) {
   // The saved model carries the best weights and the training summary.
   const std::string path = tempPath("model.dssm");
   trainer.saveModel(path, "tiny set");
-  const std::string bytes = readFile(path);
+  const std::string bytes = readFile(path, limits::kMaxModelFileBytes);
   EXPECT_NE(bytes.find("best_epoch"), std::string::npos);
   EXPECT_NE(bytes.find("tiny set"), std::string::npos);
   EXPECT_NE(bytes.find("sigma_mode"), std::string::npos);
@@ -276,7 +277,7 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
   for (std::size_t i = 1; i < train.size(); ++i) fewer.add(train.samples()[i]);
   EXPECT_NE(resumeError(options, fewer).find("different training data"), std::string::npos);
 
-  std::string bytes = readFile(options.checkpoint_path);
+  std::string bytes = readFile(options.checkpoint_path, limits::kMaxCheckpointFileBytes);
   bytes[bytes.size() / 2] ^= 0x55;
   writeFileAtomic(options.checkpoint_path, bytes);
   EXPECT_NE(resumeError(options, train).find("checksum"), std::string::npos);

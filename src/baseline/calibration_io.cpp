@@ -6,6 +6,7 @@
 
 #include "digital_sun_sensor/baseline/calibration.h"
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/spike_filter.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/common/yaml_reader.h"
@@ -91,7 +92,9 @@ std::string toYaml(const Calibration& c) {
 Calibration parseCalibration(const std::string& yaml_text, const std::string& origin) {
   YAML::Node root;
   try {
-    root = YAML::Load(yaml_text);
+    root = loadYaml(yaml_text, origin);
+  } catch (const YamlError& ex) {
+    throw CalibrationError(ex.what());
   } catch (const YAML::Exception& ex) {
     throw CalibrationError(origin + ": not valid YAML (" + ex.what() + ")");
   }
@@ -195,7 +198,7 @@ Calibration parseCalibration(const std::string& yaml_text, const std::string& or
 Calibration loadCalibration(const std::string& path) {
   std::string text;
   try {
-    text = readFile(path);
+    text = readFile(path, limits::kMaxYamlFileBytes);
   } catch (const std::runtime_error& ex) {
     throw CalibrationError(std::string("cannot read calibration: ") + ex.what());
   }

@@ -1,5 +1,6 @@
 #include <yaml-cpp/yaml.h>
 
+#include <filesystem>
 #include <iostream>
 #include <sstream>
 #include <thread>
@@ -103,6 +104,9 @@ int runGenerate(int argc, char** argv) {
   info << YAML::Key << "sensor" << YAML::Value << YAML::Load(toYaml(config)) << YAML::EndMap;
 
   DatasetGenerator generator(config, spec);
+  if (std::filesystem::exists(args.get("out") + ".partial"))
+    std::cerr << "dss generate: " << args.get("out")
+              << ".partial is left from an interrupted run: starting over (the seeded bag comes out the same)\n";
   DatasetBagWriter writer(args.get("out"), config, info.c_str(), args.getDouble("rate"));
   Progress progress("generate", spec.count);
   generator.run([&](const DatasetItem& item) { writer.write(item); },

@@ -1,6 +1,11 @@
 #include "digital_sun_sensor/common/yaml_reader.h"
 
+#include <yaml-cpp/eventhandler.h>
+#include <yaml-cpp/parser.h>
+
 #include <sstream>
+
+#include "digital_sun_sensor/common/limits.h"
 
 namespace dss {
 namespace {
@@ -20,7 +25,83 @@ std::string keyList(const YAML::Node& map) {
   return out;
 }
 
+// Counts the nodes a document expands to, an alias at the size of its anchor's
+// node, and stops at the limit: the parser's events arrive before yaml-cpp
+// builds (or anyone walks) the tree.
+class NodeCounter : public YAML::EventHandler {
+ public:
+  explicit NodeCounter(std::string origin) : origin_(std::move(origin)) {}
+
+  void OnDocumentStart(const YAML::Mark&) override {}
+  void OnDocumentEnd() override {}
+  void OnNull(const YAML::Mark&, YAML::anchor_t anchor) override { leaf(anchor); }
+  void OnAlias(const YAML::Mark&, YAML::anchor_t anchor) override {
+    add(anchor < anchor_nodes_.size() ? anchor_nodes_[anchor] : 1);
+  }
+  void OnScalar(const YAML::Mark&, const std::string&, YAML::anchor_t anchor, const std::string&) override {
+    leaf(anchor);
+  }
+  void OnSequenceStart(const YAML::Mark&, const std::string&, YAML::anchor_t anchor,
+                       YAML::EmitterStyle::value) override {
+    open(anchor);
+  }
+  void OnSequenceEnd() override { close(); }
+  void OnMapStart(const YAML::Mark&, const std::string&, YAML::anchor_t anchor, YAML::EmitterStyle::value) override {
+    open(anchor);
+  }
+  void OnMapEnd() override { close(); }
+
+ private:
+  void add(std::uint64_t n) {
+    nodes_ += n;
+    if (nodes_ > limits::kMaxYamlNodes)
+      throw YamlError(origin_ + ": more than " + std::to_string(limits::kMaxYamlNodes) +
+                      " YAML nodes (aliases counted as what they repeat); refused");
+  }
+  void remember(YAML::anchor_t anchor, std::uint64_t nodes) {
+    if (anchor == YAML::NullAnchor) return;
+    if (anchor >= anchor_nodes_.size()) anchor_nodes_.resize(anchor + 1, 1);
+    anchor_nodes_[anchor] = nodes;
+  }
+  void leaf(YAML::anchor_t anchor) {
+    add(1);
+    remember(anchor, 1);
+  }
+  void open(YAML::anchor_t anchor) {
+    add(1);
+    open_.push_back({anchor, nodes_ - 1});
+  }
+  void close() {
+    if (open_.empty()) return;
+    remember(open_.back().anchor, nodes_ - open_.back().first_node);
+    open_.pop_back();
+  }
+
+  struct Open {
+    YAML::anchor_t anchor;
+    std::uint64_t first_node;
+  };
+  std::string origin_;
+  std::uint64_t nodes_ = 0;
+  std::vector<std::uint64_t> anchor_nodes_;  // expanded size by anchor id (ids count up from 1)
+  std::vector<Open> open_;
+};
+
 }  // namespace
+
+YAML::Node loadYaml(const std::string& text, const std::string& origin) {
+  if (text.size() > limits::kMaxYamlFileBytes)
+    throw YamlError(origin + ": " + limits::describeBytes(text.size()) + " of YAML, over the limit of " +
+                    limits::describeBytes(limits::kMaxYamlFileBytes));
+  {
+    std::istringstream in(text);
+    YAML::Parser parser(in);
+    NodeCounter counter(origin);
+    while (parser.HandleNextDocument(counter)) {
+    }
+  }
+  return YAML::Load(text);
+}
 
 YamlReader::YamlReader(const YAML::Node& root, std::string origin)
     : YamlReader(root, std::move(origin), "", std::make_shared<std::set<std::string>>()) {}

@@ -210,8 +210,14 @@ void ReportOptions::validate() const {
 std::string writeReport(const SensorConfig& sensor, SunEstimator& sscnn, SunEstimator* baseline, const ReportOptions& o,
                         const Progress& progress, const PublishedProtocolRun* published) {
   o.validate();
-  std::filesystem::create_directories(o.out_dir);
-  const std::string dir = o.out_dir + "/";
+  // Built in "<out>.partial" and moved into place when complete: a killed run
+  // never leaves a report whose pages and figures disagree.
+  std::filesystem::path out = std::filesystem::path(o.out_dir).lexically_normal();
+  if (!out.has_filename()) out = out.parent_path();  // "out/" -> "out"
+  const std::string staged = out.string() + ".partial";
+  std::filesystem::remove_all(staged);
+  std::filesystem::create_directories(staged);
+  const std::string dir = staged + "/";
   auto report = [&](const std::string& stage, std::size_t done, std::size_t total) {
     if (progress) progress(stage, done, total);
   };
@@ -461,6 +467,7 @@ std::string writeReport(const SensorConfig& sensor, SunEstimator& sscnn, SunEsti
     << html(toYaml(sensor)) << "\n\nmodel metadata:\n"
     << html(o.model_metadata_yaml) << "</pre>\n</body></html>\n";
   writeFileAtomic(dir + "index.html", h.str());
+  replaceDirectory(staged, out.string());
   return summary;
 }
 

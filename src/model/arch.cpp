@@ -2,6 +2,8 @@
 
 #include <stdexcept>
 
+#include "digital_sun_sensor/common/limits.h"
+
 namespace dss {
 
 const char* centroidWeightingName(CentroidWeighting weighting) {
@@ -29,20 +31,28 @@ void validateHeadChoice(const std::string& head) {
 void ArchSpec::validate() const {
   auto fail = [&](const std::string& what) { throw std::invalid_argument("architecture '" + name + "': " + what); };
   if (input_channels != 3) fail("input_channels must be 3 (value, x, y)");
-  if (stem_width < 1) fail("stem_width must be positive");
-  if (stem_kernel < 1 || stem_kernel % 2 == 0) fail("stem_kernel must be odd and positive");
+  const std::string max_width = std::to_string(limits::kMaxLayerWidth);
+  if (stem_width < 1 || stem_width > limits::kMaxLayerWidth) fail("stem_width must be in 1.." + max_width + " (limit)");
+  if (stem_kernel < 1 || stem_kernel % 2 == 0 || stem_kernel > limits::kMaxStemKernel)
+    fail("stem_kernel must be odd and in 1.." + std::to_string(limits::kMaxStemKernel) + " (limit)");
   if (blocks.empty() || blocks.size() != widths.size()) fail("blocks and widths must be non-empty and of equal length");
+  if (blocks.size() > static_cast<std::size_t>(limits::kMaxStages))
+    fail("at most " + std::to_string(limits::kMaxStages) + " stages (limit)");
   for (std::size_t i = 0; i < blocks.size(); ++i) {
-    if (blocks[i] < 1) fail("every stage needs at least one block");
-    if (widths[i] < 1) fail("widths must be positive");
+    if (blocks[i] < 1 || blocks[i] > limits::kMaxBlocksPerStage)
+      fail("every stage needs 1.." + std::to_string(limits::kMaxBlocksPerStage) + " blocks (limit)");
+    if (widths[i] < 1 || widths[i] > limits::kMaxLayerWidth) fail("widths must be in 1.." + max_width + " (limit)");
   }
-  if (centroid_pool && centroid_width < 1) fail("centroid_width must be positive");
+  if (centroid_pool && (centroid_width < 1 || centroid_width > limits::kMaxLayerWidth))
+    fail("centroid_width must be in 1.." + max_width + " (limit)");
   if (!(residual_scale > 0 && residual_scale <= 1)) fail("residual_scale must be in (0, 1]");
   if (!feature_corrections && !centroid_pool) fail("feature_corrections off needs centroid_pool");
   if (centroid_pool && (centroid_degree < 1 || centroid_degree > 5)) fail("centroid_degree must be in 1..5");
   if (latticeHead()) {
     if (!centroid_pool) fail("the lattice head needs centroid_pool");
-    if (lattice_columns < 1 || lattice_rows < 1) fail("lattice_columns and lattice_rows must be positive");
+    if (lattice_columns < 1 || lattice_rows < 1 || lattice_columns > limits::kMaxLatticeSide ||
+        lattice_rows > limits::kMaxLatticeSide)
+      fail("lattice_columns and lattice_rows must be in 1.." + std::to_string(limits::kMaxLatticeSide) + " (limit)");
     if (!(lattice_spot_radius > 0.0)) fail("lattice_spot_radius must be positive");
     if (lattice_spotwise_phase && !lattice_whole_spot_phase)
       fail("lattice_spotwise_phase needs lattice_whole_spot_phase");
@@ -56,17 +66,22 @@ void ArchSpec::validate() const {
   if (geometric_head) {
     if (!centroid_pool) fail("the geometric head needs centroid_pool");
     if (latticeHead()) fail("the geometric head replaces the lattice head: not both");
-    if (geometric_apertures < 1 || geometric_groups < 1 || geometric_groups > geometric_apertures)
+    if (geometric_apertures < 1 || geometric_apertures > static_cast<int>(limits::kMaxApertures) ||
+        geometric_groups < 1 || geometric_groups > geometric_apertures)
       fail("the geometric head needs geometric_apertures >= 1 and geometric_groups in 1..geometric_apertures");
     if (!(geometric_gate_um > 0.0) || !(detector_pitch_um > 0.0) || detector_width_px < 2 || detector_height_px < 2 ||
+        detector_width_px > limits::kMaxDetectorSidePx || detector_height_px > limits::kMaxDetectorSidePx ||
         !(angle_scale_rad > 0.0))
       fail(
           "the geometric head needs a positive geometric_gate_um, detector_pitch_um, detector size and "
           "angle_scale_rad");
   }
+  if (head_hidden.size() > static_cast<std::size_t>(limits::kMaxStages))
+    fail("at most " + std::to_string(limits::kMaxStages) + " head_hidden layers (limit)");
   for (int h : head_hidden)
-    if (h < 1) fail("head_hidden sizes must be positive");
-  if (num_classes < 1) fail("num_classes must be positive");
+    if (h < 1 || h > limits::kMaxLayerWidth) fail("head_hidden sizes must be in 1.." + max_width + " (limit)");
+  if (num_classes < 1 || num_classes > static_cast<int>(limits::kMaxApertures))
+    fail("num_classes must be in 1.." + std::to_string(limits::kMaxApertures) + " (limit)");
 }
 
 ArchSpec archPreset(const std::string& name, int num_classes) {

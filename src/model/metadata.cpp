@@ -7,6 +7,7 @@
 #include <ctime>
 #include <sstream>
 
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/common/yaml_reader.h"
 #include "digital_sun_sensor/model/geometry_design.h"
@@ -258,7 +259,9 @@ std::string metadataToYaml(const ModelMetadata& m) {
 ModelMetadata metadataFromYaml(const std::string& text, const std::string& origin) {
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = loadYaml(text, origin);
+  } catch (const YamlError& e) {
+    throw ModelError(e.what());
   } catch (const YAML::Exception& e) {
     throw ModelError(origin + ": metadata is not valid YAML: " + e.what());
   }
@@ -343,6 +346,10 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
   m.input.max_sites = get<int>(in, "max_sites", origin, "input.");
   if (m.input.width_px < 1 || m.input.height_px < 1 || m.input.max_code < 1 || m.input.max_sites < 1)
     throw ModelError(origin + ": metadata 'input' has a non-positive size");
+  if (m.input.width_px > limits::kMaxDetectorSidePx || m.input.height_px > limits::kMaxDetectorSidePx ||
+      static_cast<std::size_t>(m.input.max_sites) > limits::kMaxSitesPerImage)
+    throw ModelError(origin + ": metadata 'input' is over the limits (" + std::to_string(limits::kMaxDetectorSidePx) +
+                     " px a side, " + std::to_string(limits::kMaxSitesPerImage) + " sites)");
   m.angle_scale_rad = get<double>(root, "angle_scale_rad", origin, "");
   if (!(m.angle_scale_rad > 0.0)) throw ModelError(origin + ": metadata 'angle_scale_rad' must be positive");
   if (const YAML::Node c = root["angle_correction"]) {  // absent: none

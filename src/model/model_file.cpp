@@ -8,6 +8,7 @@
 
 #include "digital_sun_sensor/common/container.h"
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/model/model.h"
 
 namespace dss {
@@ -36,7 +37,7 @@ void saveModel(const Model& model, const std::string& path) { writeFileAtomic(pa
 Model loadModel(const std::string& path, const SensorConfig* expected) {
   std::string bytes;
   try {
-    bytes = readFile(path);
+    bytes = readFile(path, limits::kMaxModelFileBytes);
   } catch (const std::runtime_error& e) {
     throw ModelError(std::string("model file: ") + e.what());
   }

@@ -13,6 +13,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/ros/conversions.h"
 
 namespace dss {
@@ -149,57 +150,52 @@ BagReadStats DatasetBagReader::forEach(const std::function<bool(const LabelledIm
         if (const auto t = instantiateSunAngles(m)) {
           truths[t->header.stamp] = *t;
         } else if (const auto v = m.instantiate<geometry_msgs::Vector3Stamped>()) {
-          // A sun vector (lab truth): in the sensor frame only, since a bag
-          // holds no transforms to resolve another.
-          if (!v->header.frame_id.empty() && v->header.frame_id != topics_.frame_id) {
-            if (stats.first_bad_truth.empty())
-              stats.first_bad_truth = "a sun vector on " + topics_.truth + " is in frame '" + v->header.frame_id +
-                                      "', not the sensor's '" + topics_.frame_id + "'";
+          std::string why;
+          if (const auto t = truthFromSunVector(*v, topics_.frame_id, why)) {
+            truths[t->header.stamp] = *t;
+          } else {
+            if (stats.first_bad_truth.empty()) stats.first_bad_truth = why + " (on " + topics_.truth + ")";
             ++stats.bad_truths;
-            continue;
           }
-          const double norm = std::hypot(v->vector.x, v->vector.y, v->vector.z);
-          if (!(norm > 0.0) || !std::isfinite(norm)) {
-            if (stats.first_bad_truth.empty())
-              stats.first_bad_truth = "a sun vector on " + topics_.truth + " is zero or not finite";
-            ++stats.bad_truths;
-            continue;
-          }
-          digital_sun_sensor::SunAngles t;
-          t.header = v->header;
-          t.alpha = std::atan2(v->vector.x, v->vector.z);
-          t.beta = std::atan2(v->vector.y, v->vector.z);
-          t.subfov_class = digital_sun_sensor::SunAngles::SUBFOV_UNKNOWN;
-          t.valid = v->vector.z > 0.0;
-          t.source = "truth";
-          truths[t.header.stamp] = t;
         }
       }
       std::uint64_t matched_here = 0;
       for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(topics_.image))) {
-        const auto msg = m.instantiate<sensor_msgs::Image>();
-        if (!msg) {
-          if (stats.first_bad_image.empty())
-            stats.first_bad_image = "a message on " + topics_.image + " is not an Image";
+        auto bad = [&](const std::string& why) {
+          if (stats.first_bad_image.empty()) stats.first_bad_image = why;
           ++stats.bad_images;
+        };
+        if (m.getDataType() != ros::message_traits::DataType<sensor_msgs::Image>::value() ||
+            m.getMD5Sum() != ros::message_traits::MD5Sum<sensor_msgs::Image>::value()) {
+          bad("a message on " + topics_.image + " is not an Image");
           continue;
         }
-        const auto truth = truths.find(msg->header.stamp);
+        // Read from the bytes with every length checked first (conversions.h).
+        if (m.size() > limits::kMaxImageBytes + 65536) {
+          bad("an image message of " + limits::describeBytes(m.size()) + " is over the limit of " +
+              limits::describeBytes(limits::kMaxImageBytes));
+          continue;
+        }
+        std::vector<std::uint8_t> bytes(m.size());
+        ros::serialization::OStream out(bytes.data(), static_cast<std::uint32_t>(bytes.size()));
+        m.write(out);
+        sensor_msgs::Image msg;
+        LabelledImage item;
+        try {
+          msg = imageMsgFromBytes(bytes.data(), bytes.size());
+          item.image = imageFromMsg(msg);
+        } catch (const std::invalid_argument& e) {
+          bad(e.what());
+          continue;
+        }
+        const auto truth = truths.find(msg.header.stamp);
         if (truth == truths.end()) {
           ++stats.unmatched_images;
           continue;
         }
-        LabelledImage item;
-        try {
-          item.image = imageFromMsg(*msg);
-        } catch (const std::invalid_argument& e) {
-          if (stats.first_bad_image.empty()) stats.first_bad_image = e.what();
-          ++stats.bad_images;
-          continue;
-        }
         item.bag = path;
         item.index = stats.pairs++;
-        item.stamp = msg->header.stamp;
+        item.stamp = msg.header.stamp;
         item.truth = truth->second;
         ++matched_here;
         if (!sink(item)) return stats;

@@ -234,7 +234,10 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
     } else {
       const std::string reason = status::statusCode(e.status);
       ++invalid_reasons_[reason];
-      if (reason == status::kBadImage) ++bad_images_;
+      if (reason == status::kBadImage) {
+        ++bad_images_;
+        last_bad_image_ = e.status;
+      }
     }
     const double latency_ms = (now - batch[i]->header.stamp).toSec() * 1e3;
     if (latency_ms_.size() < kLatencyWindow) {
@@ -301,9 +304,17 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   const double input_hz = window_s > 0.0 ? (received_ - received_at_last_diag_) / window_s : 0.0;
   last_diag_time_ = now;
   received_at_last_diag_ = received_;
+  const std::uint64_t processed_now = processed_ - processed_at_last_diag_;
+  const std::uint64_t bad_now = bad_images_ - bad_images_at_last_diag_;
+  processed_at_last_diag_ = processed_;
+  bad_images_at_last_diag_ = bad_images_;
+  const std::string bad_summary = std::to_string(bad_now) + " of " + std::to_string(processed_now) +
+                                  " images since the last report were bad (latest: " + last_bad_image_ + ")";
 
   if (!estimator_) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "no estimator: " + estimator_problem_);
+  } else if (bad_now > 0 && bad_now == processed_now) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, bad_summary);
   } else if (is_fallback_) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "centroid fallback: " + estimator_problem_);
   } else if (received_ == 0) {
@@ -312,6 +323,8 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
                  "model_mismatch: most recent spots do not fit the model's geometry (an uncalibrated or drifted "
                  "unit): calibrate the unit (dss calibrate-unit)");
+  } else if (bad_now > 0) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, bad_summary);
   } else {
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "estimating");
   }

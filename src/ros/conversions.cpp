@@ -1,10 +1,13 @@
 #include "digital_sun_sensor/ros/conversions.h"
 
+#include <ros/serialization.h>
+
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
 
 #include "digital_sun_sensor/common/estimate_status.h"
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/units.h"
 
 namespace dss {
@@ -34,6 +37,12 @@ cv::Mat imageFromMsg(const sensor_msgs::Image& msg) {
   if (msg.encoding == "mono16" || msg.encoding == "16UC1") type = CV_16UC1;
   if (type < 0) throw std::invalid_argument("encoding '" + msg.encoding + "' is not mono8 or mono16");
   if (msg.width == 0 || msg.height == 0) throw std::invalid_argument("image has zero width or height");
+  if (msg.width > limits::kMaxDetectorSidePx || msg.height > limits::kMaxDetectorSidePx)
+    throw std::invalid_argument("image is " + std::to_string(msg.width) + "x" + std::to_string(msg.height) +
+                                ", over the limit of " + std::to_string(limits::kMaxDetectorSidePx) + " px a side");
+  if (msg.data.size() > limits::kMaxImageBytes ||
+      static_cast<std::uint64_t>(msg.step) * msg.height > limits::kMaxImageBytes)
+    throw std::invalid_argument("image data over the limit of " + limits::describeBytes(limits::kMaxImageBytes));
   const std::size_t bytes_per_px = type == CV_8UC1 ? 1 : 2;
   if (msg.step < msg.width * bytes_per_px)
     throw std::invalid_argument("row step " + std::to_string(msg.step) + " is shorter than " +
@@ -52,6 +61,60 @@ cv::Mat imageFromMsg(const sensor_msgs::Image& msg) {
     }
   }
   return image;
+}
+
+sensor_msgs::Image imageMsgFromBytes(const std::uint8_t* bytes, std::size_t size) {
+  // The wire format: header (seq, stamp, frame_id), height, width, encoding,
+  // is_bigendian, step, data; strings and data carry a u32 length first.
+  std::size_t at = 0;
+  auto skip = [&](std::size_t n, const char* field) {
+    if (n > size - at) throw std::invalid_argument(std::string("image message is truncated in '") + field + "'");
+    at += n;
+  };
+  auto u32 = [&](const char* field) {
+    std::uint32_t v = 0;
+    const std::size_t start = at;
+    skip(4, field);
+    std::memcpy(&v, bytes + start, 4);
+    return v;
+  };
+  skip(12, "header");
+  skip(u32("header.frame_id"), "header.frame_id");
+  skip(8, "height, width");
+  skip(u32("encoding"), "encoding");
+  skip(5, "is_bigendian, step");
+  const std::uint32_t data_bytes = u32("data");
+  if (data_bytes > limits::kMaxImageBytes)
+    throw std::invalid_argument("image data of " + limits::describeBytes(data_bytes) + " over the limit of " +
+                                limits::describeBytes(limits::kMaxImageBytes));
+  skip(data_bytes, "data");
+  if (at != size) throw std::invalid_argument("image message has " + std::to_string(size - at) + " bytes past its end");
+  sensor_msgs::Image msg;
+  ros::serialization::IStream in(const_cast<std::uint8_t*>(bytes), static_cast<std::uint32_t>(size));
+  ros::serialization::deserialize(in, msg);
+  return msg;
+}
+
+std::optional<SunAngles> truthFromSunVector(const geometry_msgs::Vector3Stamped& v, const std::string& sensor_frame,
+                                            std::string& why) {
+  // A bag holds no transforms: only the sensor frame can be resolved.
+  if (!v.header.frame_id.empty() && v.header.frame_id != sensor_frame) {
+    why = "a sun vector is in frame '" + v.header.frame_id + "', not the sensor's '" + sensor_frame + "'";
+    return std::nullopt;
+  }
+  const double norm = std::hypot(v.vector.x, v.vector.y, v.vector.z);
+  if (!(norm > 0.0) || !std::isfinite(norm)) {
+    why = "a sun vector is zero or not finite";
+    return std::nullopt;
+  }
+  SunAngles t;
+  t.header = v.header;
+  t.alpha = std::atan2(v.vector.x, v.vector.z);
+  t.beta = std::atan2(v.vector.y, v.vector.z);
+  t.subfov_class = SunAngles::SUBFOV_UNKNOWN;
+  t.valid = v.vector.z > 0.0;
+  t.source = "truth";
+  return t;
 }
 
 bool insideFieldOfView(const SensorConfig& config, double alpha_rad, double beta_rad) {

@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/common/yaml_reader.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
@@ -15,20 +16,22 @@ namespace dss {
 std::optional<SensorConfig> sensorFromBagInfo(const DatasetBagReader& reader) {
   if (!reader.infoYaml()) return std::nullopt;
   try {
-    const YAML::Node info = YAML::Load(*reader.infoYaml());
+    const YAML::Node info = loadYaml(*reader.infoYaml(), "the bag's dataset_info");
     if (!info["sensor"]) return std::nullopt;
     return parseSensorConfig(YAML::Dump(info["sensor"]), "the bag's dataset_info");
   } catch (const YAML::Exception& e) {
     throw std::runtime_error(std::string("the bag's dataset_info is not valid YAML: ") + e.what());
+  } catch (const YamlError& e) {
+    throw std::runtime_error(e.what());
   }
 }
 
 int instancesFromBagInfo(const DatasetBagReader& reader) {
   if (!reader.infoYaml()) return 1;
   try {
-    const YAML::Node info = YAML::Load(*reader.infoYaml());
+    const YAML::Node info = loadYaml(*reader.infoYaml(), "the bag's dataset_info");
     return info["instances"] ? info["instances"].as<int>() : 1;
-  } catch (const YAML::Exception&) {
+  } catch (const std::exception&) {
     return 1;
   }
 }

@@ -17,6 +17,41 @@
 namespace dss {
 namespace {
 
+// Malformed variants of a valid image, each one thing wrong.
+constexpr int kMalformedKinds = 6;
+const char* const kMalformedNames[kMalformedKinds] = {"wrong encoding",     "zero width",     "short buffer",
+                                                      "size unlike sensor", "short row step", "oversized width"};
+
+sensor_msgs::Image malformed(const sensor_msgs::Image& good, int kind) {
+  sensor_msgs::Image m = good;
+  switch (kind) {
+    case 0:
+      m.encoding = "rgb8";
+      break;
+    case 1:
+      m.width = 0;
+      break;
+    case 2:
+      m.data.resize(m.data.size() / 2);
+      break;
+    case 3:
+      m.width /= 2;
+      m.height /= 2;
+      m.step /= 2;
+      m.data.resize(static_cast<std::size_t>(m.step) * m.height);
+      break;
+    case 4:
+      m.step = m.width / 2;
+      break;
+    default:
+      m.width = 100000;
+      m.height = 1;
+      m.step = 100000;
+      m.data.resize(1000);
+  }
+  return m;
+}
+
 double mean(const std::vector<double>& v) {
   double sum = 0.0;
   for (double x : v) sum += x;
@@ -36,6 +71,11 @@ PipelineBench::PipelineBench(ros::NodeHandle nh, ros::NodeHandle pnh) : nh_(nh),
   settle_s_ = pnh_.param("settle_s", settle_s_);
   start_timeout_s_ = pnh_.param("start_timeout_s", start_timeout_s_);
   image_count_ = pnh_.param("images", image_count_);
+  malformed_fraction_ = pnh_.param("malformed_fraction", malformed_fraction_);
+  clean_tail_s_ = pnh_.param("clean_tail_s", clean_tail_s_);
+  if (!(malformed_fraction_ >= 0.0 && malformed_fraction_ <= 1.0))
+    throw std::runtime_error("~malformed_fraction must be in [0, 1]");
+  if (!(clean_tail_s_ >= 0.0)) throw std::runtime_error("~clean_tail_s must be >= 0");
   seed_ = static_cast<std::uint64_t>(pnh_.param("seed", 7));
   if (!(rate_hz_ > 0.0 && rate_hz_ <= 20000.0)) throw std::runtime_error("~rate_hz must be in (0, 20000]");
   if (!(duration_s_ > 0.0)) throw std::runtime_error("~duration_s must be > 0");
@@ -86,6 +126,9 @@ void PipelineBench::run() {
   using Clock = std::chrono::steady_clock;
   const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / rate_hz_));
   std::uint64_t next_image = 0;
+  // Every n-th measured image is malformed (0: none).
+  const std::uint64_t malformed_every =
+      malformed_fraction_ > 0.0 ? std::max<std::uint64_t>(1, std::llround(1.0 / malformed_fraction_)) : 0;
   // Publishes at the rate for `seconds`; returns how many were published.
   auto publishFor = [&](double seconds, bool measured) {
     const auto end = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
@@ -95,10 +138,17 @@ void PipelineBench::run() {
       std::this_thread::sleep_until(next);
       next += period;
       const std::size_t k = next_image++ % images.size();
-      auto msg = boost::make_shared<sensor_msgs::Image>(images[k]);  // a fresh message: receivers keep theirs
+      const bool bad = measured && malformed_every && next_image % malformed_every == 0;
+      const int kind = static_cast<int>((next_image / std::max<std::uint64_t>(malformed_every, 1)) % kMalformedKinds);
+      // A fresh message each time: receivers keep theirs.
+      auto msg = boost::make_shared<sensor_msgs::Image>(bad ? malformed(images[k], kind) : images[k]);
       msg->header.stamp = ros::Time::now();
       msg->header.seq = static_cast<std::uint32_t>(next_image);
-      if (measured) {
+      if (bad) {
+        std::lock_guard<std::mutex> lock(mutex_);
+        sent_malformed_[msg->header.stamp.toNSec()] = kind;
+        ++malformed_published_;
+      } else if (measured) {
         std::lock_guard<std::mutex> lock(mutex_);
         sent_[msg->header.stamp.toNSec()] = truths[k];
       }
@@ -118,6 +168,14 @@ void PipelineBench::run() {
   const std::uint64_t published = publishFor(duration_s_, true);
   const double elapsed_s = std::chrono::duration<double>(Clock::now() - t0).count();
   ros::WallDuration(settle_s_).sleep();
+  if (clean_tail_s_ > 0.0) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      in_tail_ = true;
+    }
+    ROS_INFO("pipeline_bench: %.1f s of valid images", clean_tail_s_);
+    publishFor(clean_tail_s_, false);
+  }
   ros::WallDuration(1.2).sleep();  // one more diagnostics period for the memory reading
   const std::string json = report(elapsed_s, published);
   std::cout << json << std::endl;
@@ -128,6 +186,17 @@ void PipelineBench::onAngles(const SunAngles::ConstPtr& msg) {
   const ros::Time now = ros::Time::now();
   std::lock_guard<std::mutex> lock(mutex_);
   if (!measuring_) return;
+  if (const auto bad = sent_malformed_.find(msg->header.stamp.toNSec()); bad != sent_malformed_.end()) {
+    ++malformed_answered_;
+    if (!msg->valid && msg->status.rfind(SunAngles::STATUS_BAD_IMAGE, 0) == 0)
+      ++malformed_refused_;
+    else if (malformed_wrong_answer_.empty())
+      malformed_wrong_answer_ = std::string(kMalformedNames[bad->second]) +
+                                ": valid=" + std::to_string(static_cast<int>(msg->valid)) + " status '" + msg->status +
+                                "'";
+    sent_malformed_.erase(bad);
+    return;
+  }
   const auto it = sent_.find(msg->header.stamp.toNSec());
   if (it == sent_.end()) return;  // a warm-up image, or answered twice
   latency_ms_.push_back((now - msg->header.stamp).toSec() * 1e3);
@@ -144,6 +213,11 @@ void PipelineBench::onDiagnostics(const diagnostic_msgs::DiagnosticArray::ConstP
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& status : msg->status) {
     if (status.name.find("estimator") == std::string::npos) continue;
+    if (measuring_ && !in_tail_ && status.level != diagnostic_msgs::DiagnosticStatus::OK) ++diagnostics_not_ok_;
+    if (in_tail_) {
+      diagnostics_level_after_ = status.level;
+      diagnostics_message_after_ = status.message;
+    }
     for (const auto& kv : status.values) {
       if (kv.key == "resident memory [MiB]") {
         const double rss = std::atof(kv.value.c_str());
@@ -174,7 +248,16 @@ std::string PipelineBench::report(double elapsed_s, std::uint64_t published) con
     << ", \"mean_error_alpha_deg\": " << mean(abs_error_alpha_deg_)
     << ", \"mean_error_beta_deg\": " << mean(abs_error_beta_deg_) << ", \"estimator_dropped_total\": \""
     << estimator_dropped_ << "\", \"estimator_rss_start_mib\": " << rss_first_mib_
-    << ", \"estimator_rss_max_mib\": " << rss_max_mib_ << ", \"estimator_rss_end_mib\": " << rss_last_mib_ << "}";
+    << ", \"estimator_rss_max_mib\": " << rss_max_mib_ << ", \"estimator_rss_end_mib\": " << rss_last_mib_;
+  if (malformed_fraction_ > 0.0) {
+    o << ", \"malformed_published\": " << malformed_published_ << ", \"malformed_answered\": " << malformed_answered_
+      << ", \"malformed_refused_bad_image\": " << malformed_refused_ << ", \"malformed_first_wrong_answer\": \""
+      << malformed_wrong_answer_ << "\", \"diagnostics_not_ok_reports\": " << diagnostics_not_ok_;
+  }
+  if (clean_tail_s_ > 0.0)
+    o << ", \"diagnostics_level_after\": " << diagnostics_level_after_ << ", \"diagnostics_message_after\": \""
+      << diagnostics_message_after_ << "\"";
+  o << "}";
   return o.str();
 }
 

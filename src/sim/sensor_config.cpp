@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/yaml_reader.h"
 
 namespace dss {
@@ -20,7 +21,9 @@ void applyOverride(YAML::Node& root, const std::string& spec, const std::string&
   std::string path = spec.substr(0, eq);
   YAML::Node value;
   try {
-    value = YAML::Load(spec.substr(eq + 1));
+    value = loadYaml(spec.substr(eq + 1), origin + ": override '" + spec + "'");
+  } catch (const YamlError& e) {
+    throw ConfigError(e.what());
   } catch (const YAML::Exception& e) {
     throw ConfigError(origin + ": override '" + spec + "': value is not valid YAML");
   }
@@ -43,8 +46,9 @@ DetectorConfig readDetector(const YamlReader& r) {
   DetectorConfig d;
   d.width_px = r.get<int>("width_px");
   d.height_px = r.get<int>("height_px");
-  if (d.width_px < 8 || d.width_px > 8192) r.fail("width_px", "must be in [8, 8192]");
-  if (d.height_px < 8 || d.height_px > 8192) r.fail("height_px", "must be in [8, 8192]");
+  const std::string side_range = "must be in [8, " + std::to_string(limits::kMaxDetectorSidePx) + "] (limit)";
+  if (d.width_px < 8 || d.width_px > limits::kMaxDetectorSidePx) r.fail("width_px", side_range);
+  if (d.height_px < 8 || d.height_px > limits::kMaxDetectorSidePx) r.fail("height_px", side_range);
   d.pitch_um = r.positive("pitch_um");
   return d;
 }
@@ -79,6 +83,9 @@ MaskConfig readMask(const YamlReader& r) {
   if (!r.has("apertures")) r.fail("apertures", "missing required key");
   const YAML::Node& list = r.node()["apertures"];
   if (!list.IsSequence() || list.size() == 0) r.fail("apertures", "expected a non-empty list of apertures");
+  if (list.size() > limits::kMaxApertures)
+    r.fail("apertures",
+           std::to_string(list.size()) + " apertures, over the limit of " + std::to_string(limits::kMaxApertures));
   for (std::size_t i = 0; i < list.size(); ++i) {
     m.apertures.push_back(readAperture(r.item("apertures", i)));
   }
@@ -96,6 +103,9 @@ OpticsConfig readOptics(const YamlReader& r) {
     r.fail("mode", "unknown optics mode '" + mode + "' (expected fresnel or far_field)");
   }
   o.wavelengths_um = r.positiveList("wavelengths_um");
+  if (o.wavelengths_um.size() > static_cast<std::size_t>(limits::kMaxWavelengths))
+    r.fail("wavelengths_um", std::to_string(o.wavelengths_um.size()) + " wavelengths, over the limit of " +
+                                 std::to_string(limits::kMaxWavelengths));
   o.spectral_weights = r.positiveList("spectral_weights");
   if (o.spectral_weights.size() != o.wavelengths_um.size()) {
     r.fail("spectral_weights", "needs one weight per wavelength (" + std::to_string(o.wavelengths_um.size()) +
@@ -111,8 +121,8 @@ OpticsConfig readOptics(const YamlReader& r) {
   o.vignetting = r.get<bool>("vignetting", true);
   o.grid_step_um = r.positive("grid_step_um", 1.0);
   o.grid_size = r.get<int>("grid_size", 512);
-  if (o.grid_size < 32 || o.grid_size > 4096 || (o.grid_size & (o.grid_size - 1)) != 0) {
-    r.fail("grid_size", "must be a power of two in [32, 4096]");
+  if (o.grid_size < 32 || o.grid_size > limits::kMaxDiffractionGrid || (o.grid_size & (o.grid_size - 1)) != 0) {
+    r.fail("grid_size", "must be a power of two in [32, " + std::to_string(limits::kMaxDiffractionGrid) + "] (limit)");
   }
   o.psf_node_step_deg = r.positive("psf_node_step_deg", 1.0);
   return o;
@@ -151,7 +161,9 @@ SensorConfig parseSensorConfig(const std::string& yaml_text, const std::string& 
                                const std::vector<std::string>& overrides) {
   YAML::Node root;
   try {
-    root = YAML::Load(yaml_text);
+    root = loadYaml(yaml_text, origin);
+  } catch (const YamlError& e) {
+    throw ConfigError(e.what());
   } catch (const YAML::ParserException& e) {
     throw ConfigError(origin + ": malformed YAML at line " + std::to_string(e.mark.line + 1) + ", column " +
                       std::to_string(e.mark.column + 1) + ": " + e.msg);
@@ -225,7 +237,9 @@ SensorConfig readSensorConfig(const YamlReader& r) {
   c.anomalies.stray_light_max_fraction = stray.nonNegative("max_fraction", 0.2);
   YamlReader hot = an.child("hot_pixels", false);
   c.anomalies.hot_pixel_count = hot.get<int>("count", 0);
-  if (c.anomalies.hot_pixel_count < 0) hot.fail("count", "must be >= 0");
+  if (c.anomalies.hot_pixel_count < 0 ||
+      c.anomalies.hot_pixel_count > std::int64_t{c.detector.width_px} * c.detector.height_px)
+    hot.fail("count", "must be in [0, the detector's pixel count]");
   c.anomalies.hot_pixel_min_e_per_s = hot.positive("min_e_per_s", 1e5);
   c.anomalies.hot_pixel_max_e_per_s = hot.positive("max_e_per_s", 1e7);
   if (c.anomalies.hot_pixel_max_e_per_s < c.anomalies.hot_pixel_min_e_per_s) {
@@ -242,6 +256,16 @@ SensorConfig readSensorConfig(const YamlReader& r) {
   c.fov.alpha_max_deg = fov.positive("alpha_max_deg");
   c.fov.beta_max_deg = fov.positive("beta_max_deg");
   if (c.fov.alpha_max_deg >= 89.0 || c.fov.beta_max_deg >= 89.0) fov.fail("alpha_max_deg", "must be < 89");
+  if (c.optics.mode == OpticsMode::kFresnel) {
+    // The simulator caches a diffraction pattern per node over the field.
+    const double step = c.optics.psf_node_step_deg;
+    const double nodes = (2.0 * c.fov.alpha_max_deg / step + 2.0) * (2.0 * c.fov.beta_max_deg / step + 2.0);
+    if (nodes > static_cast<double>(limits::kMaxPsfNodes))
+      r.child("optics").fail("psf_node_step_deg", std::to_string(step) + " deg gives " +
+                                                      std::to_string(static_cast<long long>(nodes)) +
+                                                      " diffraction nodes over the field of view, over the limit of " +
+                                                      std::to_string(limits::kMaxPsfNodes));
+  }
 
   auto subfov = r.get<std::string>("subfov", "quadrant");
   if (subfov == "quadrant") {
@@ -275,9 +299,9 @@ AsBuiltConfig asBuiltTolerances(double scale) {
 SensorConfig loadSensorConfig(const std::string& path, const std::vector<std::string>& overrides) {
   std::string text;
   try {
-    text = readFile(path);
-  } catch (const std::runtime_error&) {
-    throw ConfigError(path + ": cannot open sensor config");
+    text = readFile(path, limits::kMaxYamlFileBytes);
+  } catch (const std::runtime_error& e) {
+    throw ConfigError(std::string("cannot read sensor config: ") + e.what());
   }
   return parseSensorConfig(text, path, overrides);
 }

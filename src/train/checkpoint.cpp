@@ -3,12 +3,15 @@
 #include <torch/serialize/output-archive.h>
 #include <yaml-cpp/yaml.h>
 
+#include <cmath>
 #include <cstring>
 #include <sstream>
 
 #include "digital_sun_sensor/common/container.h"
 #include "digital_sun_sensor/common/file_io.h"
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/yaml_reader.h"
 #include "trainer_impl.h"
 
 namespace dss {
@@ -105,7 +108,7 @@ void Trainer::Impl::saveCheckpoint(const std::string& path, double elapsed_s) co
 void Trainer::Impl::resume(const std::string& path) {
   std::string bytes;
   try {
-    bytes = readFile(path);
+    bytes = readFile(path, limits::kMaxCheckpointFileBytes);
   } catch (const std::runtime_error& e) {
     throw CheckpointError(std::string("checkpoint: ") + e.what());
   }
@@ -113,7 +116,7 @@ void Trainer::Impl::resume(const std::string& path) {
   const auto sections = unpackCheckpoint(bytes, origin);
   YAML::Node state;
   try {
-    state = YAML::Load(sections[0]);
+    state = loadYaml(sections[0], origin);
     auto expect = [&](const char* key, const std::string& want) {
       const std::string have = state[key].as<std::string>();
       if (have != want)
@@ -139,8 +142,14 @@ void Trainer::Impl::resume(const std::string& path) {
     elapsed_before_s = state["elapsed_s"].as<double>();
     best_val_mean_deg = state["best_val_mean_deg"].as<double>();
     best_epoch = state["best_epoch"].as<int>();
+    if (epoch < 0 || epoch > options.epochs || step_in_epoch < 0 || !(elapsed_before_s >= 0.0) ||
+        !std::isfinite(elapsed_before_s) || best_epoch < -1 || best_epoch > options.epochs)
+      throw CheckpointError(origin + ": position out of range (epoch " + std::to_string(epoch) + ", step " +
+                            std::to_string(step_in_epoch) + ", best epoch " + std::to_string(best_epoch) + ")");
   } catch (const YAML::Exception& e) {
     throw CheckpointError(origin + ": unreadable state: " + e.what());
+  } catch (const YamlError& e) {
+    throw CheckpointError(e.what());
   }
   try {
     Model restored = deserializeModel(sections[1], origin, &sensor);
@@ -148,6 +157,7 @@ void Trainer::Impl::resume(const std::string& path) {
     // By name and shape, as a model file is read.
     copyTensorsByName(restored.net->named_parameters(), model.net->named_parameters(), origin);
     copyTensorsByName(restored.net->named_buffers(), model.net->named_buffers(), origin);
+    if (!sections[2].empty()) deserializeModel(sections[2], origin + " (its best model)", &sensor);  // readable
     best_model_bytes = sections[2];
     torch::serialize::InputArchive archive;
     std::istringstream stream(sections[3]);

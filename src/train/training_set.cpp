@@ -5,6 +5,7 @@
 #include <numeric>
 #include <stdexcept>
 
+#include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/random.h"
 
 namespace dss {
@@ -19,7 +20,17 @@ void TrainingSet::add(const cv::Mat& image, double alpha_rad, double beta_rad, i
     s.pixels.push_back((static_cast<std::uint32_t>(p.y) << 16) | static_cast<std::uint32_t>(p.x));
     s.dn.push_back(static_cast<std::uint16_t>(p.dn));
   }
-  samples_.push_back(std::move(s));
+  add(std::move(s));
+}
+
+void TrainingSet::add(SparseSample sample) {
+  const std::uint64_t bytes = sizeof(SparseSample) + sample.pixels.size() * 4 + sample.dn.size() * 2;
+  if (pixel_bytes_ + bytes > limits::kMaxTrainingSetBytes)
+    throw limits::LimitExceeded("training images in memory: " + std::to_string(samples_.size()) +
+                                " images fill the limit of " + limits::describeBytes(limits::kMaxTrainingSetBytes) +
+                                " (use fewer or smaller bags, or a higher input threshold)");
+  pixel_bytes_ += bytes;
+  samples_.push_back(std::move(sample));
 }
 
 std::vector<int> TrainingSet::siteCounts() const {

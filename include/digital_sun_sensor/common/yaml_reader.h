@@ -93,6 +93,13 @@ class YamlReader {
   std::shared_ptr<std::set<std::string>> seen_;  // key paths asked for, shared by the whole document
 };
 
+// YAML::Load with the package's bounds: at most limits::kMaxYamlFileBytes of
+// text and limits::kMaxYamlNodes nodes with every alias counted at the size
+// of what it repeats (a "billion laughs" document is refused before it is
+// built or walked). Throws YamlError "<origin>: ..." naming the limit; a
+// syntax error is YAML::ParserException as from YAML::Load.
+YAML::Node loadYaml(const std::string& text, const std::string& origin);
+
 // The first key path in `given` that `known` lacks, with the keys known there
 // ("angle_correction.degre: unknown key (known here: alpha, beta, degree)");
 // maps are compared key by key, lists item by item. Empty when there is none.

@@ -82,6 +82,9 @@ class CalibrationNode {
   std::vector<double> spot_mismatch_;
   std::size_t mismatch_next_ = 0;
   std::uint64_t received_at_last_diag_ = 0;
+  // Bad images since the last diagnostics period: WARN while they come, OK after.
+  std::uint64_t processed_at_last_diag_ = 0, bad_images_at_last_diag_ = 0;
+  std::string last_bad_image_;
   ros::WallTime last_diag_time_;
 };
 

@@ -25,9 +25,10 @@ class TrainingSet {
   explicit TrainingSet(InputSpec spec) : spec_(spec) {}
 
   // Keeps the pixels above spec.threshold_dn. Throws std::invalid_argument
-  // when the image disagrees with the spec.
+  // when the image disagrees with the spec, limits::LimitExceeded when the
+  // set would outgrow limits::kMaxTrainingSetBytes.
   void add(const cv::Mat& image, double alpha_rad, double beta_rad, int subfov_class);
-  void add(SparseSample sample) { samples_.push_back(std::move(sample)); }
+  void add(SparseSample sample);
 
   const InputSpec& spec() const { return spec_; }
   const std::vector<SparseSample>& samples() const { return samples_; }
@@ -43,6 +44,7 @@ class TrainingSet {
  private:
   InputSpec spec_;
   std::vector<SparseSample> samples_;
+  std::uint64_t pixel_bytes_ = 0;  // of every sample's pixels and values
 };
 
 // Rates of the augmentation applied to training samples (each independently
