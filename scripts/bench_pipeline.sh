@@ -7,14 +7,7 @@
 #   (/none: calibration_node's ~inference_symmetry none, the image alone; default cases:
 #   nodelet@100 node@100 nodelet@1000 node@1000)
 set -euo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-WS="${DSS_WS:-$ROOT/.ws}"
-export PATH="/usr/bin:$PATH"
-set +u
-# shellcheck disable=SC1091
-source "$WS/devel/setup.bash"
-set -u
-export ROS_HOME="${ROS_HOME:-$WS/ros_home}"
+source "$(dirname "$0")/ros_env.sh"
 duration="${1:-10}"
 shift || true
 cases=("${@:-nodelet@100 node@100 nodelet@1000 node@1000}")

@@ -6,8 +6,7 @@
 # over. Prints one JSON line per command and exits 1 on any failure.
 #   scripts/kill_test.sh [N]      default N = 20
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-DSS="${DSS:-${DSS_WS:-$ROOT/.ws}/devel/lib/digital_sun_sensor/dss}"
+source "$(dirname "$0")/dss_env.sh"
 N="${1:-20}"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
@@ -48,11 +47,19 @@ kill_randomly() {
   return 1
 }
 
+# Seconds "$@" takes uninterrupted (kills are spread up to 1.1 times that).
+timed() {
+  local t0
+  t0="$(date +%s.%N)"
+  "$@" >/dev/null 2>&1 || fail "uninterrupted run failed: $*"
+  awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN {printf "%.1f", 1.1 * (b - a)}'
+}
+
 # ---- dss generate: the bag at --out is complete or absent after every kill.
-"$DSS" generate "${sensor[@]}" --count 300 --seed 11 --out "$work/reference.bag" >/dev/null 2>&1
+max_s="$(timed "$DSS" generate "${sensor[@]}" --count 300 --seed 11 --out "$work/reference.bag")"
 kills=0 restarts_noted=0
 for ((i = 0; i < N; ++i)); do
-  if kill_randomly 4 "$work/generate.log" "$DSS" generate "${sensor[@]}" --count 300 --seed 11 --out "$work/gen.bag"; then
+  if kill_randomly "$max_s" "$work/generate.log" "$DSS" generate "${sensor[@]}" --count 300 --seed 11 --out "$work/gen.bag"; then
     kills=$((kills + 1))
     [[ -e "$work/gen.bag" ]] && fail "generate: killed run left $work/gen.bag"
   fi
@@ -62,11 +69,11 @@ done
 "$DSS" generate "${sensor[@]}" --count 300 --seed 11 --out "$work/gen.bag" >"$work/generate.log" 2>&1 ||
   fail "generate: the run after the kills failed"
 cmp -s "$work/gen.bag" "$work/reference.bag" || fail "generate: the bag after the kills differs from an uninterrupted one"
-echo "{\"command\": \"generate\", \"runs\": $N, \"killed\": $kills, \"restarts_that_said_why\": $restarts_noted," \
+echo "{\"command\": \"generate\", \"kill_within_s\": $max_s, \"runs\": $N, \"killed\": $kills, \"restarts_that_said_why\": $restarts_noted," \
   "\"final_bag_identical\": $(cmp -s "$work/gen.bag" "$work/reference.bag" && echo true || echo false)}"
 
 # ---- dss train: every kill resumes from the last checkpoint; files whole or absent.
-train=("$DSS" train --data "$work/reference.bag" --out "$work/model.dssmodel" --arch resnet10_w16 --epochs 4
+train=("$DSS" train --data "$work/reference.bag" --out "$work/model.dssmodel" --arch resnet10_w16 --epochs 200
   --batch 8 --val-fraction 0.1 --checkpoint-minutes 0.02 --seed 3)
 kills=0 resumed=0 started_over=0 refused=0
 for ((i = 0; i < N; ++i)); do
@@ -97,15 +104,18 @@ echo "{\"command\": \"train\", \"runs\": $((i + 1)), \"killed\": $kills, \"resum
 "$DSS" calibrate --data "$work/reference.bag" --out "$work/calib.yaml" >/dev/null 2>&1
 report=("$DSS" report --model "$work/model.dssmodel" --calibration "$work/calib.yaml" "${sensor[@]}"
   --out "$work/report" --test-images 40 --sweep-images 5 --sweep-sensors 1)
+max_s="$(timed "${report[@]}")"  # a complete report is in place before the kills
 kills=0
 for ((i = 0; i < N; ++i)); do
-  if kill_randomly 10 "$work/report.log" "${report[@]}"; then kills=$((kills + 1)); fi
+  if kill_randomly "$max_s" "$work/report.log" "${report[@]}"; then kills=$((kills + 1)); fi
   if [[ -e "$work/report" ]]; then
     [[ -s "$work/report/index.html" && -s "$work/report/summary.json" ]] || fail "report: kill $i left an incomplete report"
+  elif [[ ! -e "$work/report.old" ]]; then
+    fail "report: kill $i left neither the report nor the previous one"
   fi
 done
 "${report[@]}" >"$work/report.log" 2>&1 || { tail -n 5 "$work/report.log" >&2; fail "report: the run after the kills failed"; }
-echo "{\"command\": \"report\", \"runs\": $N, \"killed\": $kills," \
+echo "{\"command\": \"report\", \"kill_within_s\": $max_s, \"runs\": $N, \"killed\": $kills," \
   "\"final_report_complete\": $([[ -s "$work/report/index.html" ]] && echo true || echo false)}"
 echo "kill_test: $failures failures" >&2
 ((failures == 0))

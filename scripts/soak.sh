@@ -8,22 +8,63 @@
 #   the node never exits; resident memory grows < 5 % from start to end;
 #   every malformed image answered valid=false with status bad_image;
 #   diagnostics WARN/ERROR while malformed images come, OK after.
-#   scripts/soak.sh [CASE ...]     CASE = SECONDS@RATE[/malformed]; default: 600@100 60@1000 60@100/malformed
+# Case "simulator": simulator_node at 100 Hz for 60 s while /attitude gets
+# valid, NaN and non-unit quaternions at 100 Hz each: it must stay up, keep
+# its image rate and grow < 5 % in resident memory.
+#   scripts/soak.sh [CASE ...]     CASE = SECONDS@RATE[/malformed] or simulator;
+#                                  default: 600@100 60@1000 60@100/malformed simulator
 set -euo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-WS="${DSS_WS:-$ROOT/.ws}"
-export PATH="/usr/bin:$PATH"
-set +u
-# shellcheck disable=SC1091
-source "$WS/devel/setup.bash"
-set -u
-export ROS_HOME="${ROS_HOME:-$WS/ros_home}"
+source "$(dirname "$0")/ros_env.sh"
 cases=("$@")
-if ((${#cases[@]} == 0)); then cases=(600@100 60@1000 60@100/malformed); fi
+if ((${#cases[@]} == 0)); then cases=(600@100 60@1000 60@100/malformed simulator); fi
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 status=0
+
+rss_mib() { awk '/VmRSS/ {printf "%.1f", $2 / 1024}' "/proc/$1/status" 2>/dev/null || echo 0; }
+
+soak_simulator() {
+  local seconds=60 pids=() sim
+  roscore -p 11399 >"$out/roscore.log" 2>&1 &
+  pids+=($!)
+  export ROS_MASTER_URI=http://localhost:11399
+  sleep 3
+  rosrun digital_sun_sensor simulator_node _rate_hz:=100 _warm_up_threads:=1 >"$out/sim.log" 2>&1 &
+  sim=$!
+  local header='header: {stamp: now, frame_id: base_link}'
+  for q in "{x: 0, y: 0, z: 0, w: 1}" "{x: 0, y: 0, z: 0, w: .nan}" "{x: 0, y: 0, z: 0, w: 2}"; do
+    rostopic pub -s -r 100 /attitude geometry_msgs/QuaternionStamped "{$header, quaternion: $q}" >/dev/null 2>&1 &
+    pids+=($!)
+  done
+  sleep 20  # warm-up: the diffraction cache fills
+  local start end rate alive=true
+  start="$(rss_mib "$sim")"
+  rate="$(timeout 15 rostopic hz -w 500 /image 2>/dev/null | grep -oP 'average rate: \K[0-9.]+' | tail -n1)"
+  sleep $((seconds - 15))
+  kill -0 "$sim" 2>/dev/null || alive=false
+  end="$(rss_mib "$sim")"
+  kill "$sim" "${pids[@]}" 2>/dev/null
+  wait 2>/dev/null
+  unset ROS_MASTER_URI
+  /usr/bin/python3 - "$alive" "$start" "$end" "${rate:-0}" <<'PY'
+import json, sys
+alive, start, end, rate = sys.argv[1] == "true", float(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4])
+growth = (end - start) / start if start > 0 else float("nan")
+problems = [p for p, bad in (("simulator_node exited", not alive),
+                             ("resident memory %.1f -> %.1f MiB" % (start, end), not growth < 0.05),
+                             ("image rate %.1f Hz of 100" % rate, rate < 90)) if bad]
+print(json.dumps({"case": "simulator", "seconds": 60, "attitudes_per_s": 300, "image_rate_hz": rate,
+                  "rss_start_mib": start, "rss_end_mib": end, "rss_growth_percent": round(100 * growth, 2),
+                  "verdict": "pass" if not problems else "fail: " + "; ".join(problems)}))
+sys.exit(1 if problems else 0)
+PY
+}
+
 for c in "${cases[@]}"; do
+  if [[ "$c" == simulator ]]; then
+    soak_simulator || status=1
+    continue
+  fi
   spec="${c%/malformed}"
   seconds="${spec%@*}" rate="${spec#*@}"
   fraction=0 tail=0
