@@ -36,7 +36,8 @@ run_target() {
   cp -n "$REPO_DIR/fuzz/seeds/$target/"* "$corpus/" 2>/dev/null || true
   # One thread each (two targets share two cores); leaks are findings too.
   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 \
-    ASAN_OPTIONS="detect_leaks=1:allocator_may_return_null=0" UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1" \
+    ASAN_OPTIONS="detect_leaks=1:allocator_may_return_null=0" LSAN_OPTIONS="suppressions=$REPO_DIR/fuzz/lsan.supp" \
+    UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1" \
     "$bin" "$corpus" -max_total_time="$SECONDS_PER_TARGET" -timeout=30 -rss_limit_mb=6144 -max_len=1048576 \
     -print_final_stats=1 -artifact_prefix="$findings" -close_fd_mask=1 >"$log" 2>&1 || true
   local executions coverage features corpus_size found

@@ -15,6 +15,7 @@ PACKAGES=(
   # ROS 1 core, build, tools
   ros-core-dev catkin rosbash rosout python3-roslaunch python3-rostopic python3-yaml
   python3-rosbag python3-rostest librostest-dev python3-rosunit python3-catkin-pkg
+  python3-sensor-msgs python3-geometry-msgs  # rostopic on images and attitudes (scripts/soak.sh)
   libtf2-ros-dev tf2-tools libtf2-geometry-msgs-dev libcv-bridge-dev librosbag-dev
   libdiagnostic-updater-dev libdiagnostic-msgs-dev libnodelet-dev libnodeletlib-dev
   libnodeletlib-tools pluginlib-dev libsensor-msgs-dev libgeometry-msgs-dev

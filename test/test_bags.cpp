@@ -371,6 +371,49 @@ TEST(Messages, SunVectorTruthIsReadInTheSensorFrameOnly) {
 }  // namespace
 
 // The message's STATUS_* constants and the core's codes are one list.
+// Malformed images mixed into a bag (what dss train, calibrate, eval and
+// trainer_node read): each is skipped with a count and a reason, the good
+// pairs are all read, and nothing else is disturbed.
+TEST(Messages, MalformedImagesInABagAreSkippedAndCounted) {
+  const std::string path = tmp("mixed.bag");
+  std::vector<std::function<void(sensor_msgs::Image&)>> damage = {
+      [](sensor_msgs::Image&) {},                                // good
+      [](sensor_msgs::Image& m) { m.encoding = "rgb8"; },        // wrong encoding
+      [](sensor_msgs::Image& m) { m.data.resize(3); },           // short buffer
+      [](sensor_msgs::Image& m) { m.width = 0; },                // zero width
+      [](sensor_msgs::Image& m) { m.width = m.step = 100000; },  // over the size limit
+      [](sensor_msgs::Image& m) { m.step = 1; },                 // row step shorter than a row
+  };
+  {
+    rosbag::Bag bag(path, rosbag::bagmode::Write);
+    for (int round = 0; round < 3; ++round)
+      for (std::size_t k = 0; k < damage.size(); ++k) {
+        sensor_msgs::Image image;
+        image.header.stamp = ros::Time(1.0 + round * 10 + k);
+        image.encoding = "mono8";
+        image.width = image.height = image.step = 4;
+        image.data.assign(16, 7);
+        damage[k](image);
+        bag.write("/sun_sensor/image", image.header.stamp, image);
+        digital_sun_sensor::SunAngles truth;
+        truth.header.stamp = image.header.stamp;
+        truth.valid = true;
+        bag.write("/sun_sensor/truth", truth.header.stamp, truth);
+      }
+  }
+  std::size_t read = 0;
+  const dss::BagReadStats stats = dss::DatasetBagReader({path}).forEach([&](const dss::LabelledImage& item) {
+    EXPECT_EQ(item.image.cols, 4);
+    ++read;
+    return true;
+  });
+  EXPECT_EQ(read, 3u);
+  EXPECT_EQ(stats.pairs, 3u);
+  EXPECT_EQ(stats.bad_images, 15u);
+  EXPECT_NE(stats.first_bad_image.find("rgb8"), std::string::npos) << stats.first_bad_image;
+  std::remove(path.c_str());
+}
+
 // An image payload's length fields are checked against its bytes before
 // anything is allocated; sizes over the limits are refused by name.
 TEST(Messages, ImagePayloadsAndFieldsAreBounded) {
