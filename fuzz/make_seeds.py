@@ -9,6 +9,8 @@ import struct
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "scripts"))
+import container  # noqa: E402  (scripts/container.py)
 SEEDS = os.path.join(ROOT, "fuzz", "seeds")
 
 
@@ -16,18 +18,6 @@ def write(target, name, data):
     os.makedirs(os.path.join(SEEDS, target), exist_ok=True)
     with open(os.path.join(SEEDS, target, name), "wb") as f:
         f.write(data)
-
-
-def container_sections(path):
-    data = open(path, "rb").read()
-    version, count = struct.unpack_from("<II", data, 8)
-    count = count or 2  # version 1 model files: two sections, count field 0
-    lengths = struct.unpack_from("<%dQ" % count, data, 16)
-    at, sections = 16 + 8 * count, []
-    for n in lengths:
-        sections.append(data[at:at + n])
-        at += n
-    return sections
 
 
 def ros_string(s):
@@ -49,7 +39,7 @@ def main():
         write("calibration", os.path.basename(path)[:-len(".calib.yaml")], open(path, "rb").read())
     for path in sorted(glob.glob(os.path.join(ROOT, "models", "*.dssmodel")))[:3]:
         name = os.path.basename(path)[:-len(".dssmodel")]
-        meta = container_sections(path)[0]
+        meta = container.sections(open(path, "rb").read())[0]
         write("metadata", name, meta)
         write("model_file", name + "_metadata", b"\x02\x00" + meta)  # replaces a small model's metadata
     write("model_file", "empty_weights", b"\x02\x01")

@@ -14,7 +14,12 @@ REPO_DIR="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 FUZZ_WS="${DSS_FUZZ_WS:-$REPO_DIR/.ws-fuzz}"
 SECONDS_PER_TARGET="${1:-600}"
 shift || true
-ALL_TARGETS=(sensor_config calibration metadata model_file checkpoint bag_messages image_msg)
+# Every target: fuzz/fuzz_<target>.cpp (fuzz/CMakeLists.txt lists the same).
+ALL_TARGETS=()
+for source in "$REPO_DIR"/fuzz/fuzz_*.cpp; do
+  name="$(basename "$source" .cpp)"
+  ALL_TARGETS+=("${name#fuzz_}")
+done
 TARGETS=("$@")
 if ((${#TARGETS[@]} == 0)); then TARGETS=("${ALL_TARGETS[@]}"); fi
 JOBS="${DSS_FUZZ_JOBS:-$(nproc)}"

@@ -14,21 +14,8 @@ RANDOM=42
 sensor=(--sensor "$ROOT/config/sensors/thesis_sa.yaml" --set optics.psf_node_step_deg=3)
 failures=0
 
-# A container file (model, checkpoint) is whole: magic, lengths and FNV-1a checksum agree.
-container_ok() {
-  /usr/bin/python3 - "$1" <<'PY'
-import struct, sys
-data = open(sys.argv[1], "rb").read()
-version, count = struct.unpack_from("<II", data, 8)
-count = count or 2
-lengths = struct.unpack_from("<%dQ" % count, data, 16)
-body = 16 + 8 * count + sum(lengths)
-h = 0xcbf29ce484222325
-for b in data[:body]:
-    h = ((h ^ b) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
-sys.exit(0 if len(data) == body + 8 and struct.unpack_from("<Q", data, body)[0] == h else 1)
-PY
-}
+# A container file (model, checkpoint) is whole: lengths and FNV-1a checksum agree.
+container_ok() { /usr/bin/python3 "$ROOT/scripts/container.py" check "$1"; }
 fail() { echo "kill_test: $*" >&2; failures=$((failures + 1)); }
 
 # Kills "$@" after a random 1..MAX s; returns 0 if it was killed, 1 if it finished.
