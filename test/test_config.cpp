@@ -54,6 +54,36 @@ TEST(SensorConfig, RoundTripsThroughCanonicalYaml) {
   EXPECT_EQ(toYaml(a), toYaml(b));
 }
 
+// One key table reads and writes (sim/sensor_config_fields.h): a config of the
+// required keys alone is written whole, every optional key at its default, and
+// what is written reads back the same; a square aperture is written as the
+// rectangle it is read as.
+TEST(SensorConfig, OneKeyTableReadsAndWritesEveryKey) {
+  const std::string minimal =
+      "name: tiny\n"
+      "detector: {width_px: 64, height_px: 48, pitch_um: 5.0}\n"
+      "mask: {height_mm: 2.0, apertures: [{diameter_um: 40}, {shape: square, side_um: 30, x_um: 500}]}\n"
+      "optics: {wavelengths_um: [0.6], spectral_weights: [1]}\n"
+      "detector_noise: {full_well_e: 5000}\n"
+      "fov: {alpha_max_deg: 5, beta_max_deg: 5}\n";
+  const SensorConfig c = parseSensorConfig(minimal, "minimal.yaml");
+  const std::string written = toYaml(c);
+  const SensorConfig d = parseSensorConfig(written, "written.yaml");
+  EXPECT_EQ(toYaml(d), written);
+  for (const std::string key :
+       {"thickness_mm: 0", "refractive_index: 1.5", "mode: fresnel", "limb_darkening_u: 0.56", "grid_size: 512",
+        "irradiance_w_m2: 1361", "mode: auto", "adc_full_scale_e: 5000", "bit_depth: 8", "level_fraction: 0.9",
+        "aperture_diameter_sigma_um: 0", "max_fraction: 0.2", "max_e_per_s: 1e+07", "max_blocked_fraction: 0.3",
+        "reflectance: 0.02", "subfov: quadrant"})
+    EXPECT_NE(written.find(key), std::string::npos) << key << " not written:\n" << written;
+  ASSERT_EQ(d.mask.apertures.size(), 2u);
+  EXPECT_EQ(d.mask.apertures[1].shape, ApertureShape::kRectangle);
+  EXPECT_DOUBLE_EQ(d.mask.apertures[1].width_um, 30.0);
+  EXPECT_DOUBLE_EQ(d.mask.apertures[1].height_um, 30.0);
+  EXPECT_DOUBLE_EQ(d.mask.apertures[1].x_um, 500.0);
+  EXPECT_DOUBLE_EQ(d.noise.adc_full_scale_e, 5000.0);  // the full well unless given
+}
+
 TEST(SensorConfig, OverridesApply) {
   const SensorConfig c = loadSensorConfig(shipped("thesis_sa"), {"optics.mode=far_field", "mask.height_mm=4.5"});
   EXPECT_EQ(c.optics.mode, OpticsMode::kFarField);

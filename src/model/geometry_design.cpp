@@ -17,7 +17,7 @@ namespace {
 
 double largestDiameterUm(const SensorConfig& config) {
   double largest = 0.0;
-  for (const auto& a : config.mask.apertures) largest = std::max(largest, 2.0 * std::sqrt(a.areaUm2() / M_PI));
+  for (const auto& a : config.mask.apertures) largest = std::max(largest, a.equivalentDiameterUm());
   return largest;
 }
 

@@ -265,6 +265,7 @@ double angleRmsDeg(const std::vector<ImageRead>& reads) {
 
 std::string UnitCalibrationReport::toYaml() const {
   YAML::Emitter out;
+  out.SetDoublePrecision(6);  // a record for people: residuals and changes, not values read back
   out << YAML::BeginMap;
   out << YAML::Key << "images" << YAML::Value << images << YAML::Key << "images_used" << YAML::Value << images_used;
   out << YAML::Key << "spots" << YAML::Value << spots << YAML::Key << "outliers" << YAML::Value << outliers;

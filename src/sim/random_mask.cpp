@@ -22,8 +22,6 @@ double meanWavelengthUm(const OpticsConfig& optics) {
   return weight > 0.0 ? sum / weight : 0.55;
 }
 
-double equivalentDiameterUm(const ApertureConfig& a) { return 2.0 * std::sqrt(a.areaUm2() / kPi); }
-
 // Attitudes on which the whole-spot count is checked: a 9 x 9 grid over the
 // field, its corners included.
 std::vector<Eigen::Vector3d> fieldGrid(const FieldOfViewConfig& fov) {
@@ -76,7 +74,7 @@ RandomMask drawRandomMask(const SensorConfig& base, const RandomMaskOptions& opt
   if (base.mask.apertures.empty() && !(options.diameter_um > 0.0))
     throw std::invalid_argument("random mask: the base config has no aperture; give a diameter");
   const double diameter_um =
-      options.diameter_um > 0.0 ? options.diameter_um : equivalentDiameterUm(base.mask.apertures.front());
+      options.diameter_um > 0.0 ? options.diameter_um : base.mask.apertures.front().equivalentDiameterUm();
   RandomMask out;
   out.spot_diameter_um = spotDiameterUm(base, diameter_um * (1.0 + options.diameter_spread));
   const double min_spacing_um = options.min_separation_spots * out.spot_diameter_um;

@@ -3,6 +3,7 @@
 // (config/sensors/*.yaml); docs/simulator.md describes the model behind each key.
 #pragma once
 
+#include <cmath>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -38,9 +39,10 @@ struct ApertureConfig {
 
   // Open area without occluders.
   double areaUm2() const {
-    return shape == ApertureShape::kCircle ? 0.25 * kPi * diameter_um * diameter_um
-                                           : width_um * height_um;
+    return shape == ApertureShape::kCircle ? 0.25 * kPi * diameter_um * diameter_um : width_um * height_um;
   }
+  // The diameter of a circle of the same open area.
+  double equivalentDiameterUm() const { return 2.0 * std::sqrt(areaUm2() / kPi); }
 };
 
 struct DetectorConfig {
