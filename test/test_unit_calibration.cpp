@@ -11,6 +11,7 @@
 
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/unit_calibration.h"
 #include "digital_sun_sensor/model/unit_recalibration.h"
@@ -103,8 +104,13 @@ TEST(UnitCalibration, RecoversABuiltUnitsGeometryFromItsImages) {
   const Errors nominal = errorsOn(model, design_test), uncalibrated = errorsOn(model, unit_test);
 
   const MaskGeometry before = model.net->geometry()->maskGeometry();
+  recordInputEnvelope(model.meta, {1, 2});  // a family envelope that holds none of the unit's images
   const UnitCalibrationReport report = calibrateUnit(model, lab, "25 noise-free images");
   const MaskGeometry after = model.net->geometry()->maskGeometry();
+  // The unit's own images widen the input envelope to hold them.
+  const InputEnvelope envelope = inputEnvelopeOf(model.meta);
+  EXPECT_EQ(envelope.min_sites, 1);
+  for (int sites : lab.siteCounts()) EXPECT_TRUE(envelope.contains(sites)) << sites << " lit sites";
   const Errors calibrated = errorsOn(model, unit_test);
   std::printf(
       "unit calibration: design %.6f deg on the design, %.6f on the unit; calibrated %.6f (spots %.4f -> %.4f "

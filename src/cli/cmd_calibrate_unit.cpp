@@ -8,6 +8,7 @@
 #include "bag_reading.h"
 #include "commands.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/unit_calibration.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
@@ -34,7 +35,8 @@ int runCalibrateUnit(int argc, char** argv) {
       "position) to labelled images of one built unit, with the network frozen: the spots the network reads against "
       "those the geometry puts at the true angles, weighed as the head's solve weighs them; spots far off the fit "
       "are left out. Then refits the smooth angle correction (degree chosen by cross-validation) and the predicted "
-      "sigma on the same images (--refit). Writes the unit model atomically, "
+      "sigma on the same images (--refit), and widens the input envelope to hold them. Writes the unit model "
+      "atomically, "
       "recording the calibration (data, images, residuals, what "
       "changed) in its metadata, and prints one JSON line. Use images of the unit alone (a turntable in the lab: "
       "25 over the field of view are typically enough).",
@@ -134,6 +136,8 @@ int runCalibrateUnit(int argc, char** argv) {
               << ", \"alpha_within_1sigma_after\": " << sigma->alpha_after.within[0]
               << ", \"beta_within_1sigma_before\": " << sigma->beta_before.within[0]
               << ", \"beta_within_1sigma_after\": " << sigma->beta_after.within[0];
+  const InputEnvelope envelope = inputEnvelopeOf(model.meta);
+  std::cout << ", \"lit_sites_min\": " << envelope.min_sites << ", \"lit_sites_max\": " << envelope.max_sites;
   if (correction) std::cout << ", \"correction_degree\": " << correction->degree;
   std::cout << ", \"refit\": " << (sigma ? "true" : "false");
   if (mismatch)

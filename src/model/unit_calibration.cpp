@@ -12,6 +12,7 @@
 #include "digital_sun_sensor/baseline/geometry_fit.h"
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/geometry.h"
@@ -422,6 +423,10 @@ UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const
     if (report.image_used[k]) report.whole_spot_samples.push_back(samples[reads[k].input]);
   report.angle_rms_deg_before = before_deg;
   report.angle_rms_deg_after = angleRmsDeg(readSamples(model, samples));
+  // The unit's own images widen the input envelope: its lit-pixel counts may
+  // lie past the family's, which refused 1-7 % of a calibrated unit's images
+  // as out_of_distribution.
+  recordInputEnvelope(model.meta, covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.siteCounts())));
   YAML::Node record = YAML::Load(report.toYaml());
   record["data"] = data_description;
   model.meta.unit_yaml = YAML::Dump(record);

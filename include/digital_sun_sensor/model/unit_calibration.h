@@ -101,8 +101,9 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
                                       const UnitCalibrationOptions& options = {});
 
 // Fits the unit's geometry into `model` from labelled images of the unit
-// (encoded with the model's input spec) and records the report, with
-// `data_description`, in the model's metadata. Throws std::invalid_argument
+// (encoded with the model's input spec), widens the model's input envelope
+// to hold those images, and records the report, with `data_description`, in
+// the model's metadata. Throws std::invalid_argument
 // for a model without a geometric head, data of another input spec, or too
 // few spots to fit.
 UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const std::string& data_description,
