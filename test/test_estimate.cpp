@@ -77,6 +77,22 @@ TEST(Screen, HotPixelsAreRemovedAndTheSpotKept) {
   EXPECT_EQ(raw_cleaned.at<std::uint16_t>(31, 31), 900);
 }
 
+// What the screen hands its estimator is what screenedImage gives a consumer
+// that re-reads the image (in-flight recalibration): the hot pixel gone.
+TEST(Screen, ScreenedImageIsWhatTheEstimatorIsGiven) {
+  const SensorConfig sensor = shipped("thesis_sa");
+  const ScreenedEstimator screen(std::make_unique<CentroidEstimator>(loadCalibration(calibrationPath())),
+                                 ScreenOptions{});
+  const Renderer renderer(SensorInstance::nominalOf(sensor));
+  cv::Mat image = renderer.render(sunVectorFromAngles(0.5 * kRadPerDeg, -1.0 * kRadPerDeg), 7, nullptr, {});
+  const cv::Mat clean = image.clone();
+  image.at<std::uint8_t>(10, 10) = 255;  // a hot pixel far from the spot
+  const cv::Mat screened = screen.screenedImage(image);
+  EXPECT_EQ(screened.at<std::uint8_t>(10, 10), clean.at<std::uint8_t>(10, 10));
+  EXPECT_EQ(cv::countNonZero(screened != clean), 0);
+  EXPECT_TRUE(screen.screenedImage(cv::Mat()).empty());
+}
+
 // Hot pixels inside a real spot (wide_ma: 20 % on-chip threshold, sharp
 // diffraction peaks) are found and repaired; the light itself is not touched,
 // and the baseline's centroids return to those of the clean image.

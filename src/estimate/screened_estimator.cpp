@@ -121,6 +121,12 @@ ScreenedEstimator::ScreenedEstimator(std::unique_ptr<SunEstimator> inner, Screen
   spike_margin_dn_ = spikeMargins(inner_->sensor(), options_.spike_sigmas);
 }
 
+cv::Mat ScreenedEstimator::screenedImage(const cv::Mat& image) const {
+  if (image.empty() || image.channels() != 1 || (image.depth() != CV_8U && image.depth() != CV_16U)) return image;
+  return clean(repairSpikes(image, spike_margin_dn_), threshold_dn_, black_level_dn_, options_.min_spot_px, max_code_)
+      .image;
+}
+
 std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>& images) {
   std::vector<SunEstimate> out(images.size());
   std::vector<cv::Mat> passed;

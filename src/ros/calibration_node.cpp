@@ -208,8 +208,11 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
         if (headers.back().frame_id.empty()) headers.back().frame_id = default_frame_id_;
         paired.push_back(estimates[i]);
       }
+      // The refit re-reads the images as the estimator read them: hot pixels repaired, specks removed.
+      std::vector<cv::Mat> screened;
+      for (const cv::Mat& image : images) screened.push_back(estimator_->screenedImage(image));
       try {
-        recalibration_->offer(images, headers, paired);
+        recalibration_->offer(screened, headers, paired);
       } catch (const std::exception& e) {
         ROS_ERROR_THROTTLE(5.0, "calibration_node: recalibration failed: %s", e.what());
       }

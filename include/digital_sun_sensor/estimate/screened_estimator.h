@@ -54,6 +54,12 @@ class ScreenedEstimator : public SunEstimator {
   const SensorConfig& sensor() const override { return inner_->sensor(); }
   std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
 
+  // The image as the inner estimator is given it: hot pixels repaired and lit
+  // groups under min_spot_px removed (what a consumer that re-reads the same
+  // images, such as in-flight recalibration, should read). An image the
+  // screen cannot read (empty, not 8/16-bit mono) comes back as it is.
+  cv::Mat screenedImage(const cv::Mat& image) const;
+
  private:
   std::unique_ptr<SunEstimator> inner_;
   ScreenOptions options_;

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "digital_sun_sensor/common/sun_estimate.h"
+#include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/ros/in_flight_recalibration.h"
 
 namespace dss {
@@ -43,7 +44,7 @@ class CalibrationNode {
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   ros::NodeHandle nh_, pnh_;
-  std::unique_ptr<SunEstimator> estimator_;  // null when neither model nor calibration could be used
+  std::unique_ptr<ScreenedEstimator> estimator_;  // null when neither model nor calibration could be used
   // Held while estimating and while recalibration touches the model.
   std::mutex estimator_mutex_;
   std::unique_ptr<InFlightRecalibration> recalibration_;  // ~recalibration/enabled
