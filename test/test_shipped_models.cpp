@@ -15,8 +15,10 @@
 
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
+#include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sparse/threads.h"
+#include "digital_sun_sensor/train/trainer.h"
 
 namespace dss {
 namespace {
@@ -102,6 +104,60 @@ TEST(ShippedModels, EveryRecipeIsAShippedModel) {
   EXPECT_EQ(recipes.size(), 6u);
   for (const auto& r : recipes)
     EXPECT_TRUE(std::filesystem::exists(std::string(DSS_SOURCE_DIR) + "/models/" + r + ".dssmodel")) << r;
+}
+
+// Every recipe describes its model file: the recipe's sensor (with its `set`
+// overrides) is the one the file records, its dss train options make the
+// file's architecture and input encoding, and its schedule, data size and
+// calibrate-sigma steps are the file's. Retraining takes hours
+// (scripts/train_models.sh); this holds the recipes to the files in seconds.
+TEST(ShippedModels, EveryRecipeDescribesItsModelFile) {
+  const std::string source = DSS_SOURCE_DIR;
+  for (const auto& e : std::filesystem::directory_iterator(source + "/config/recipes")) {
+    const std::string name = e.path().stem().string();
+    SCOPED_TRACE(name);
+    const YAML::Node r = YAML::LoadFile(e.path().string());
+    std::vector<std::string> sets;
+    if (r["set"])
+      for (const auto& s : r["set"]) sets.push_back(s.as<std::string>());
+    const SensorConfig sensor =
+        loadSensorConfig(source + "/config/sensors/" + r["sensor"].as<std::string>() + ".yaml", sets);
+    const Model model = loadModel(source + "/models/" + name + ".dssmodel");
+    const ModelMetadata& m = model.meta;
+    EXPECT_EQ(toYaml(parseSensorConfig(m.sensor_yaml, name + " (recorded sensor)")), toYaml(sensor));
+
+    const YAML::Node train = r["train"];
+    TrainOptions options;
+    options.arch = train["arch"].as<std::string>();
+    options.centroid_weighting = train["centroid_weighting"].as<std::string>();
+    options.feature_corrections = train["feature_corrections"].as<std::string>();
+    if (train["lattice_phase"]) options.lattice_phase = train["lattice_phase"].as<std::string>();
+    if (train["head"]) options.head = train["head"].as<std::string>();
+    const FreshModelDesign design = freshModelDesign(sensor, options);
+    const YAML::Node made = YAML::Load(metadataToYaml(metadataFor(sensor, design.arch, design.head)));
+    const YAML::Node shipped = YAML::Load(metadataToYaml(m));
+    EXPECT_EQ(YAML::Dump(made["arch"]), YAML::Dump(shipped["arch"]));
+    EXPECT_EQ(YAML::Dump(made["input"]), YAML::Dump(shipped["input"]));
+
+    const YAML::Node summary = YAML::Load(m.training_yaml);
+    EXPECT_EQ(summary["epochs_scheduled"].as<int>(), train["epochs"].as<int>());
+    EXPECT_DOUBLE_EQ(summary["learning_rate"].as<double>(), train["lr"].as<double>());
+    EXPECT_EQ(summary["seed"].as<std::uint64_t>(), train["seed"].as<std::uint64_t>());
+    EXPECT_FALSE(summary["init_model"]);
+    std::uint64_t images = 0;
+    for (const auto& bag : r["bags"]["train"]) images += bag["count"].as<std::uint64_t>();
+    EXPECT_EQ(summary["train_samples"].as<std::uint64_t>() + summary["validation_samples"].as<std::uint64_t>(), images);
+
+    // calibrate_sigma: keep leaves training's (no) angle correction, D fits one of degree <= D;
+    // keep leaves no inference symmetry, another names it.
+    const std::string correction = r["calibrate_sigma"]["correction_degree"].as<std::string>();
+    if (correction == "keep" || correction == "none")
+      EXPECT_FALSE(m.angle_correction.active());
+    else
+      EXPECT_TRUE(m.angle_correction.active() && m.angle_correction.degree <= std::stoi(correction));
+    const std::string symmetry = r["calibrate_sigma"]["symmetry"].as<std::string>();
+    EXPECT_EQ(inferenceSymmetryName(m.inference_symmetry), symmetry == "keep" ? std::string("none") : symmetry);
+  }
 }
 
 TEST(ShippedModels, ThesisSa) { expectHeadline("thesis_sa", 400); }

@@ -101,6 +101,25 @@ void TrainOptions::validate() const {
           "augmentation threshold_max_fraction must be in [0, 1)");
 }
 
+FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& options) {
+  if (options.arch.empty()) options.arch = defaultArchName();
+  FreshModelDesign d;
+  d.arch = archPreset(options.arch, sensor.numSubFovClasses());
+  if (options.feature_corrections.empty()) options.feature_corrections = "on";
+  d.arch.feature_corrections = options.feature_corrections == "on";
+  if (options.lattice_phase.empty()) options.lattice_phase = "spotwise";
+  d.head.lattice_spotwise_phase = options.lattice_phase == "spotwise";
+  if (options.head.empty()) options.head = "auto";
+  d.head.head = options.head;
+  // Site weights: the geometric head starts from the intensity-weighted
+  // centroid of each spot (the baseline's, and its search anchors on the
+  // brightest site), the other heads from equal weights.
+  if (options.centroid_weighting.empty())
+    options.centroid_weighting = metadataFor(sensor, d.arch, d.head).arch.geometric_head ? "value" : "learned";
+  d.arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
+  return d;
+}
+
 Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOptions o)
     : sensor(s), train(std::move(t)), validation(std::move(v)), options(std::move(o)) {
   options.validate();
@@ -138,22 +157,8 @@ Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOp
       throw std::invalid_argument("training option init_model: " + options.init_model + " has the " + head +
                                   " head, not the " + options.head);
   } else {
-    if (options.arch.empty()) options.arch = defaultArchName();
-    ArchSpec arch = archPreset(options.arch, sensor.numSubFovClasses());
-    if (options.feature_corrections.empty()) options.feature_corrections = "on";
-    arch.feature_corrections = options.feature_corrections == "on";
-    if (options.lattice_phase.empty()) options.lattice_phase = "spotwise";
-    HeadOptions head;
-    head.lattice_spotwise_phase = options.lattice_phase == "spotwise";
-    if (options.head.empty()) options.head = "auto";
-    head.head = options.head;
-    // Site weights: the geometric head starts from the intensity-weighted
-    // centroid of each spot (the baseline's, and its search anchors on the
-    // brightest site), the other heads from equal weights.
-    if (options.centroid_weighting.empty())
-      options.centroid_weighting = metadataFor(sensor, arch, head).arch.geometric_head ? "value" : "learned";
-    arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
-    model = createModel(sensor, arch, deriveSeed(options.seed, 0xA7C4), head);
+    const FreshModelDesign design = freshModelDesign(sensor, options);
+    model = createModel(sensor, design.arch, deriveSeed(options.seed, 0xA7C4), design.head);
   }
   model.net->train();
   optimizer = std::make_unique<torch::optim::AdamW>(

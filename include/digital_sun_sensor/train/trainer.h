@@ -11,6 +11,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/sim/sensor_config.h"
 #include "digital_sun_sensor/train/training_set.h"
 
@@ -83,6 +84,17 @@ struct TrainProgress {
   double best_val_mean_deg = 0.0;
   int best_epoch = -1;
 };
+
+// The architecture and head options of the fresh model (no init model) that
+// training with `options` makes for `sensor`; fills the empty choices of
+// `options` (arch, feature corrections, lattice phase, head, centroid
+// weighting) with their defaults. test_shipped_models holds every shipped
+// model's file to what its recipe's options give here.
+struct FreshModelDesign {
+  ArchSpec arch;
+  HeadOptions head;
+};
+FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& options);
 
 // One human-readable line: epoch, step, loss, validation error, images/s, ETA.
 std::string formatProgress(const TrainProgress& progress);
