@@ -65,7 +65,8 @@ void ArchSpec::validate() const {
     fail("geometric_prior_size must be 0 or 4..1025, with centroid_pool");
   if (geometric_head) {
     if (!centroid_pool) fail("the geometric head needs centroid_pool");
-    if (latticeHead()) fail("the geometric head replaces the lattice head: not both");
+    if (latticeHead() && lattice_resolve != LatticeResolve::kCode)
+      fail("the geometric head keeps a lattice head only as its aperture-code coarse estimate");
     if (geometric_apertures < 1 || geometric_apertures > static_cast<int>(limits::kMaxApertures) ||
         geometric_groups < 1 || geometric_groups > geometric_apertures)
       fail("the geometric head needs geometric_apertures >= 1 and geometric_groups in 1..geometric_apertures");

@@ -123,10 +123,16 @@ void setGeometric(const SensorConfig& config, const HeadOptions& head, ArchSpec&
   validateHeadChoice(head.head);
   const bool family_head = arch.latticeHead() || config.mask.apertures.size() < 2;
   if (head.head == "classic" || (head.head == "auto" && family_head)) return;
-  arch.lattice_pitch_x = arch.lattice_pitch_y = 0.0;
-  arch.lattice_columns = arch.lattice_rows = 1;
-  arch.lattice_whole_spot_phase = arch.lattice_spotwise_phase = false;
-  arch.lattice_pixel_x = arch.lattice_pixel_y = 0.0;
+  // An aperture-coded lattice keeps its head as the coarse estimate: the
+  // code says which aperture each spot is, which the solve's own search
+  // (by the light the spots explain) cannot tell. Other lattices give way
+  // to the centroid and the search.
+  if (!(arch.latticeHead() && arch.lattice_resolve == LatticeResolve::kCode)) {
+    arch.lattice_pitch_x = arch.lattice_pitch_y = 0.0;
+    arch.lattice_columns = arch.lattice_rows = 1;
+    arch.lattice_whole_spot_phase = arch.lattice_spotwise_phase = false;
+    arch.lattice_pixel_x = arch.lattice_pixel_y = 0.0;
+  }
   const GeometryDesign design = geometryDesignOf(config);
   arch.geometric_head = true;
   arch.geometric_apertures = static_cast<int>(design.apertures_um.size());
