@@ -203,6 +203,82 @@ TEST(GeometricHead, PeriodicLatticeIsNotReadOnePitchOff) {
   EXPECT_GT(edge_left, 20) << "most draws should have a row or column off the detector";
 }
 
+// One aperture (thesis_sa: 512 x 512 px of 1.55 um, 5 mm, the light above
+// 90 % of the peak): a spot whose centre lies within its radius of the
+// detector's edge is cut, and its plain centroid is pulled inward by up to
+// a third of the radius. The solve reads its centre along the cut from the
+// shape of its light instead, along an edge and in a corner.
+TEST(GeometricHead, SpotCutByTheEdgeIsReadAtItsCentre) {
+  const SensorConfig config = loadSensorConfig(DSS_SOURCE_DIR "/config/sensors/thesis_sa.yaml");
+  const GeometryDesign design = geometryDesignOf(config);
+  SensorGeometry geometry(1, 1);
+  geometry->setDesign(design);
+  const double pitch = config.detector.pitch_um, half = 0.5 * config.detector.width_px * pitch;
+  // The top tenth of a Gaussian spot (not a quadratic), 12 um in radius,
+  // integrated over each pixel (4 x 4 samples).
+  constexpr double kRadiusUm = 12.0, kThreshold = 0.9;
+  const double sigma2 = kRadiusUm * kRadiusUm / (2.0 * std::log(1.0 / kThreshold));
+  auto addCap = [&](Sites& sites, const Eigen::Vector2d& centre, std::int64_t image) {
+    const int lo_x = static_cast<int>(std::floor((centre.x() - kRadiusUm + half) / pitch)) - 1;
+    const int lo_y = static_cast<int>(std::floor((centre.y() - kRadiusUm + half) / pitch)) - 1;
+    const int span = static_cast<int>(2.0 * kRadiusUm / pitch) + 3;
+    for (int i = lo_x; i <= lo_x + span; ++i)
+      for (int j = lo_y; j <= lo_y + span; ++j) {
+        if (i < 0 || j < 0 || i >= config.detector.width_px || j >= config.detector.height_px) continue;
+        const double x = (i + 0.5) * pitch - half, y = (j + 0.5) * pitch - half;
+        double w = 0.0;
+        for (int u = 0; u < 4; ++u)
+          for (int v = 0; v < 4; ++v) {
+            const Eigen::Vector2d at(x + (u - 1.5) * pitch / 4.0, y + (v - 1.5) * pitch / 4.0);
+            w += std::max(0.0, std::exp(-(at - centre).squaredNorm() / (2.0 * sigma2)) - kThreshold) / 16.0;
+          }
+        if (w > 0.0) sites.add(x, y, w, image);
+      }
+  };
+  Rng rng(9);
+  Sites sites;
+  std::vector<Eigen::Vector2d> centres;
+  // Distances of the centre from the right edge (um); the last two images in
+  // the top right corner.
+  const std::vector<double> inside_um = {0.4, 1.0, 2.0, 3.3, 5.0, 7.5, 10.0, 30.0, 2.5, 6.0};
+  for (std::size_t image = 0; image < inside_um.size(); ++image) {
+    const bool corner = image >= 8;
+    const Eigen::Vector2d centre(half - inside_um[image],
+                                 corner ? half - 0.7 * inside_um[image] : rng.uniform(-300, 300));
+    centres.push_back(centre);
+    addCap(sites, centre, static_cast<std::int64_t>(image));
+  }
+  const auto images = static_cast<std::int64_t>(centres.size());
+  std::vector<double> reference;
+  for (const auto& c : centres) {
+    // A coarse estimate 0.03 deg off (the spot moves against the sun).
+    reference.insert(reference.end(),
+                     {std::atan(-c.x() / design.height_um) + 5e-4, std::atan(-c.y() / design.height_um)});
+  }
+  auto options = optionsFor(config);
+  const auto solution = solveGeometry(*geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight),
+                                      torch::tensor(sites.index), images, tensorOf(reference).view({-1, 2}), options);
+  const auto spots = geometry->spotsUm(solution.angles_rad);
+  double worst_plain_um = 0.0;
+  for (std::int64_t b = 0; b < images; ++b) {
+    const Eigen::Vector2d read(spots[b][0][0].item<double>(), spots[b][0][1].item<double>());
+    const auto& truth = centres[static_cast<std::size_t>(b)];
+    // Along an edge within 0.1 um (0.001 deg at 5 mm), in a corner 0.3 um.
+    EXPECT_LT((read - truth).norm(), b >= 8 ? 0.3 : 0.1)
+        << "centre " << inside_um[static_cast<std::size_t>(b)] << " um inside the edge";
+    // The plain centroid of the same sites.
+    Eigen::Vector2d plain = Eigen::Vector2d::Zero();
+    double sum = 0.0;
+    for (std::size_t i = 0; i < sites.weight.size(); ++i)
+      if (sites.index[i] == b) {
+        plain += sites.weight[i] * Eigen::Vector2d(sites.xy_um[2 * i], sites.xy_um[2 * i + 1]);
+        sum += sites.weight[i];
+      }
+    worst_plain_um = std::max(worst_plain_um, (plain / sum - truth).norm());
+  }
+  EXPECT_GT(worst_plain_um, 3.0) << "the cut should pull the plain centroid inward";
+}
+
 TEST(GeometricHead, OverlappingSpotsReadAsOneGroup) {
   // Two apertures 30 um apart (their spots merge) and one apart: grouped,
   // the merged light's centroid is the flux-weighted mean of its members'.

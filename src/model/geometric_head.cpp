@@ -210,6 +210,7 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
   auto angles = torch::zeros({batch, 2}, kDouble);
   auto spot = torch::zeros({n}, torch::kLong);
   auto inside = torch::zeros({n}, kDouble);
+  auto read_um = sites.clone();
   auto read = torch::zeros({batch, groups}, torch::kBool);
   auto jac = torch::zeros({batch, groups, 2, 2}, kDouble);
   auto inverse = torch::zeros({batch, 2, 2}, kDouble);
@@ -217,6 +218,7 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
     auto a = angles.accessor<double, 2>();
     auto s = spot.accessor<std::int64_t, 1>();
     auto in = inside.accessor<double, 1>();
+    auto at = read_um.accessor<double, 2>();
     auto r = read.accessor<bool, 2>();
     auto j = jac.accessor<double, 4>();
     auto inv = inverse.accessor<double, 3>();
@@ -230,6 +232,8 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
         const int g = solution.group[k];
         s[row] = b * groups + std::max(g, 0);
         in[row] = g >= 0 ? 1.0 : 0.0;
+        at[row][0] = solution.read_um[k].x();
+        at[row][1] = solution.read_um[k].y();
       }
       for (std::int64_t g = 0; g < groups; ++g) {
         r[b][g] = solution.weight[static_cast<std::size_t>(g)] > 0.0;
@@ -241,9 +245,10 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
     }
   }
   // The last step in the graph: the spots and their weights from the site
-  // weights, the geometry's spots from its tensors; Jacobian and normal
-  // matrix held at the solution.
-  const SpotReads r = readSpots(sites, weight.reshape({-1}).to(torch::kFloat64) * inside, spot, batch * groups);
+  // weights, where the plain solve read the sites (a cut spot's moved to its
+  // fitted centre), the geometry's spots from its tensors; Jacobian and
+  // normal matrix held at the solution.
+  const SpotReads r = readSpots(read_um, weight.reshape({-1}).to(torch::kFloat64) * inside, spot, batch * groups);
   const auto spread = r.spread.clamp_min(options.pitch_um * options.pitch_um / 6.0).view({batch, groups});
   const auto solve_w = torch::where(read, r.sum.view({batch, groups}) / spread, torch::zeros_like(spread));
   const auto spots = r.centroid.view({batch, groups, 2});

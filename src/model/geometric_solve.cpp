@@ -39,10 +39,51 @@ std::vector<Eigen::Matrix2d> jacobians(const Design& design, const Eigen::Vector
   return j;
 }
 
+// Sides of the detector a cut spot crosses (bits of Reading::cut).
+constexpr char kCutRight = 1, kCutLeft = 2, kCutTop = 4, kCutBottom = 8;
+
+// A cut spot's centre along the axes whose edge it crosses: the vertex of
+// the isotropic quadratic w = q0 + q1 x + q2 y + q3 (x^2 + y^2) fitted to its
+// sites' weights, whose curvature the light along the edge and on the far
+// side fixes (a spot whose light falls off alike in every direction from its
+// centre). Along an axis with no cut (or cut at both ends) the centroid
+// stays. The sites keep their weights and are moved by the centre's change,
+// so that their centroid is the centre and its spread theirs. Nothing moves
+// where the fit finds no peak or puts it more than the spot's extent away.
+void fitCutSpot(const std::vector<Site>& sites, const std::vector<std::size_t>& members, char cut, Reading& r) {
+  const bool along[2] = {((cut & kCutRight) != 0) != ((cut & kCutLeft) != 0),
+                         ((cut & kCutTop) != 0) != ((cut & kCutBottom) != 0)};
+  if (!along[0] && !along[1]) return;
+  Eigen::Vector2d centroid = Eigen::Vector2d::Zero();
+  double sum = 0.0, extent2 = 0.0;
+  for (std::size_t i : members) {
+    centroid += sites[i].weight * sites[i].um;
+    sum += sites[i].weight;
+  }
+  if (!(sum > 0.0) || members.size() < 6) return;
+  centroid /= sum;
+  Eigen::Matrix4d a = Eigen::Matrix4d::Zero();
+  Eigen::Vector4d b = Eigen::Vector4d::Zero();
+  for (std::size_t i : members) {
+    const Eigen::Vector2d d = sites[i].um - centroid;
+    extent2 = std::max(extent2, d.squaredNorm());
+    const Eigen::Vector4d f(1.0, d.x(), d.y(), d.squaredNorm());
+    a += f * f.transpose();
+    b += f * sites[i].weight;
+  }
+  const Eigen::Vector4d q = a.ldlt().solve(b);
+  if (!q.allFinite() || !(q[3] < 0.0)) return;
+  Eigen::Vector2d shift(-q[1] / (2.0 * q[3]), -q[2] / (2.0 * q[3]));
+  for (int axis = 0; axis < 2; ++axis)
+    if (!along[axis]) shift[axis] = 0.0;
+  if (!shift.allFinite() || shift.squaredNorm() > extent2) return;
+  for (std::size_t i : members) r.read_um[i] = sites[i].um + shift;
+}
+
 }  // namespace
 
 Reading readSpots(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles, double radius_um,
-                  const Options& options) {
+                  const Options& options, bool fit_cut) {
   const auto spots = apertureSpots(design, angles);
   const double edge_x = 0.5 * (options.width_px - 2) * options.pitch_um;
   const double edge_y = 0.5 * (options.height_px - 2) * options.pitch_um;
@@ -50,11 +91,12 @@ Reading readSpots(const Design& design, const std::vector<Site>& sites, const Ei
   Reading r;
   r.group.resize(sites.size());
   r.distance2.resize(sites.size());
+  r.read_um.resize(sites.size());
   r.sum.assign(groups, 0.0);
   r.spread.assign(groups, 0.0);
   r.centroid.assign(groups, Eigen::Vector2d::Zero());
   r.cut.assign(groups, 0);
-  std::vector<Eigen::Vector2d> second(groups, Eigen::Vector2d::Zero());
+  std::vector<std::vector<std::size_t>> members(groups);
   for (std::size_t i = 0; i < sites.size(); ++i) {
     double best = std::numeric_limits<double>::infinity();
     int nearest = 0;
@@ -67,18 +109,28 @@ Reading readSpots(const Design& design, const std::vector<Site>& sites, const Ei
     }
     r.distance2[i] = best;
     r.group[i] = design.group[static_cast<std::size_t>(nearest)];
+    r.read_um[i] = sites[i].um;
     if (!(best < radius_um * radius_um)) continue;
     const auto g = static_cast<std::size_t>(r.group[i]);
-    const double w = sites[i].weight;
-    r.sum[g] += w;
-    r.centroid[g] += w * sites[i].um;
-    second[g] += w * sites[i].um.cwiseProduct(sites[i].um);
-    if (std::abs(sites[i].um.x()) > edge_x || std::abs(sites[i].um.y()) > edge_y) r.cut[g] = 1;
+    members[g].push_back(i);
+    const Eigen::Vector2d& xy = sites[i].um;
+    if (xy.x() > edge_x) r.cut[g] |= kCutRight;
+    if (xy.x() < -edge_x) r.cut[g] |= kCutLeft;
+    if (xy.y() > edge_y) r.cut[g] |= kCutTop;
+    if (xy.y() < -edge_y) r.cut[g] |= kCutBottom;
   }
   for (std::size_t g = 0; g < groups; ++g) {
+    if (fit_cut && r.cut[g]) fitCutSpot(sites, members[g], r.cut[g], r);
+    Eigen::Vector2d second = Eigen::Vector2d::Zero();
+    for (std::size_t i : members[g]) {
+      const double w = sites[i].weight;
+      r.sum[g] += w;
+      r.centroid[g] += w * r.read_um[i];
+      second += w * r.read_um[i].cwiseProduct(r.read_um[i]);
+    }
     const double safe = std::max(r.sum[g], 1e-30);
     r.centroid[g] /= safe;
-    r.spread[g] = (second[g] / safe - r.centroid[g].cwiseProduct(r.centroid[g])).sum();
+    r.spread[g] = (second / safe - r.centroid[g].cwiseProduct(r.centroid[g])).sum();
   }
   return r;
 }
@@ -139,7 +191,7 @@ Eigen::Vector2d refine(const Design& design, const std::vector<Site>& sites, Eig
 // spot's light, not the image's, since a spot of a 49-aperture mask holds 2 %.
 double score(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles,
              const Options& options) {
-  const Reading r = readSpots(design, sites, angles, 0.5 * options.gate_um, options);
+  const Reading r = readSpots(design, sites, angles, 0.5 * options.gate_um, options, false);
   double total = 0.0, explained = 0.0;
   int lit = 0;
   for (const auto& s : sites) total += s.weight;
@@ -230,6 +282,7 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
   out.group.resize(sites.size());
   for (std::size_t i = 0; i < sites.size(); ++i)
     out.group[i] = r.distance2[i] < options.gate_um * options.gate_um ? r.group[i] : -1;
+  out.read_um = r.read_um;
   out.weight = solveWeights(r, options);
   out.jacobian = jacobians(design, angles);
   out.normal_inverse = normalInverse(out.jacobian, out.weight);

@@ -42,6 +42,7 @@ struct Site {
 struct ImageSolution {
   Eigen::Vector2d angles_rad = Eigen::Vector2d::Zero();
   std::vector<int> group;                 // per site: its group, or -1 beyond the gate
+  std::vector<Eigen::Vector2d> read_um;   // per site: where its spot reads it
   std::vector<double> weight;             // per group: its weight in the solve (0: not read)
   std::vector<Eigen::Matrix2d> jacobian;  // per group: d(spot um)/d(angles) at the solution
   Eigen::Matrix2d normal_inverse = Eigen::Matrix2d::Zero();
@@ -50,16 +51,21 @@ struct ImageSolution {
 // The spots as the sites show them at given angles: per site its group and
 // squared distance from its nearest aperture's spot; per group the summed
 // weight, weighted centroid and spread of its sites within `radius_um`, and
-// whether one of them lies on the detector's outermost rows or columns.
+// whether one of them lies on the detector's outermost rows or columns (cut).
+// With `fit_cut`, a cut spot's centre along the axes it is cut is the vertex
+// of an isotropic quadratic fitted to its sites' weights (its plain centroid
+// is pulled inward), and its sites are read moved by the difference
+// (`read_um`: where each site is read).
 struct Reading {
   std::vector<int> group;
   std::vector<double> distance2;
+  std::vector<Eigen::Vector2d> read_um;
   std::vector<double> sum, spread;
   std::vector<Eigen::Vector2d> centroid;
   std::vector<char> cut;
 };
 Reading readSpots(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles, double radius_um,
-                  const Options& options);
+                  const Options& options, bool fit_cut = true);
 
 // Weight of each group in the solve: its summed weight over its spread (the
 // centroid's noise variance goes as spread / sum); whole spots only where

@@ -101,8 +101,9 @@ struct GeometricSolution {
 // reference_rad [B, 2]; a spot is its sites' weighted centroid, weighing in
 // the solve by its summed weight over its weighted spread (the centroid's
 // noise variance goes as spread / sum); a spot with a site on the
-// detector's outermost rows or columns is cut (its centroid pulled inward)
-// and not read while the image has a whole one.
+// detector's outermost rows or columns is cut: not read while the image has
+// a whole one, and read at the vertex of a quadratic fitted to its light
+// along the cut axis (its centroid is pulled inward).
 GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch::Tensor& site_um,
                                 const torch::Tensor& weight, const torch::Tensor& index, std::int64_t batch,
                                 const torch::Tensor& reference_rad, const GeometricSolveOptions& options);
