@@ -470,6 +470,40 @@ TEST(BiasCalibration, RemovesASmoothBiasOnHeldOutImages) {
   EXPECT_THROW(calibrateBias(model, fitted, 1000, AngleCorrection::kMaxDegree + 1), std::invalid_argument);
 }
 
+// A unit's refit on a few images: of low degree, added to the family's
+// correction (which a low degree cannot replace) rather than instead of it.
+TEST(BiasCalibration, AddsToTheModelsCorrection) {
+  TrainingSet fitted{tinySet().spec()}, held_out{tinySet().spec()};
+  tinySet().split(0.5, 2, fitted, held_out);
+  std::vector<const SparseSample*> picked;
+  for (const auto& s : held_out.samples()) picked.push_back(&s);
+  auto rmsDeg = [&](const Model& m) {
+    const auto p = m.predictSamples(picked);
+    double sum = 0.0;
+    for (std::size_t k = 0; k < p.size(); ++k)
+      sum += std::pow(p[k].alpha_rad - picked[k]->alpha_rad, 2) + std::pow(p[k].beta_rad - picked[k]->beta_rad, 2);
+    return radToDeg(std::sqrt(sum / (2.0 * static_cast<double>(p.size()))));
+  };
+  Model family = createModel(tinySensor(), "resnet10_w16", 5);
+  calibrateBias(family, fitted, 1000, 4);
+  const AngleCorrection base = family.meta.angle_correction;
+  ASSERT_GE(base.degree, 1);
+  Model replaced = family, added = family;
+  calibrateBias(replaced, fitted, 1000, 0);
+  const BiasCalibration c = calibrateBias(added, fitted, 1000, 0, true);
+  const AngleCorrection& sum = added.meta.angle_correction;
+  EXPECT_EQ(sum.degree, base.degree);
+  // The base's terms above the added degree are untouched.
+  for (std::size_t k = AngleCorrection::termCount(std::max(c.degree, 0)); k < sum.alpha.size(); ++k) {
+    EXPECT_EQ(sum.alpha[k], base.alpha[k]) << k;
+    EXPECT_EQ(sum.beta[k], base.beta[k]) << k;
+  }
+  std::printf("held-out RMS %.5f deg with the family's correction, %.5f added to, %.5f replaced by degree 0\n",
+              rmsDeg(family), rmsDeg(added), rmsDeg(replaced));
+  EXPECT_LT(rmsDeg(added), 1.05 * rmsDeg(family));
+  EXPECT_LT(rmsDeg(added), 0.8 * rmsDeg(replaced));
+}
+
 // Averaged over the dihedral mirrors, each axis's variance mixes both of the
 // head's outputs, so per-axis factors would not give the coverage they were
 // fitted for: one factor serves both axes, and what calibrateSigma reports is

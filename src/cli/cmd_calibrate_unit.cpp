@@ -34,8 +34,9 @@ int runCalibrateUnit(int argc, char** argv) {
       "Fits the geometry of a model with a geometric head (mask height, offset, rotation, tilt, each aperture's "
       "position) to labelled images of one built unit, with the network frozen: the spots the network reads against "
       "those the geometry puts at the true angles, weighed as the head's solve weighs them; spots far off the fit "
-      "are left out. Then refits the smooth angle correction (degree chosen by cross-validation) and the predicted "
-      "sigma on the same images (--refit), and widens the input envelope to hold them. Writes the unit model "
+      "are left out. Then fits what the model's smooth angle correction leaves (a correction of a degree chosen by "
+      "cross-validation, added to it) and refits the predicted sigma on the same images (--refit), and widens the "
+      "input envelope to hold them. Writes the unit model "
       "atomically, "
       "recording the calibration (data, images, residuals, what "
       "changed) in its metadata, and prints one JSON line. Use images of the unit alone (a turntable in the lab: "
@@ -47,8 +48,8 @@ int runCalibrateUnit(int argc, char** argv) {
           {"out", "MODEL", "unit model file to write (may be --model)", "", true, false},
           {"max-images", "N", "use at most N images, evenly spaced over all bags (0: all)", "0", false, false},
           {"refit", "MODE",
-           "refit the smooth angle correction (degree <= " + std::to_string(kMaxCorrectionDegree) +
-               ", cross-validated) and the predicted sigma on these images once the geometry is fitted: 'yes', "
+           "add to the smooth angle correction (degree <= " + std::to_string(kMaxCorrectionDegree) +
+               ", cross-validated) and refit the predicted sigma on these images once the geometry is fitted: 'yes', "
                "'no' (keep the model's), or 'auto' (the correction from " +
                std::to_string(kMinCorrectionImages) + " images on, sigma from " + std::to_string(kMinSigmaImages) + ")",
            "auto", false, false},
@@ -97,7 +98,10 @@ int runCalibrateUnit(int argc, char** argv) {
     // images with a whole spot of a drawn thesis_sa unit at 50 images).
     TrainingSet whole(data.samples.spec());
     for (const SparseSample* s : report.whole_spot_samples) whole.add(*s);
-    correction = calibrateBias(model, whole, whole.size(), kMaxCorrectionDegree);
+    // Added to the family's correction, which the geometry was fitted
+    // through (a wide field's is of high degree: wide_ma's 7, which 25
+    // images cannot refit).
+    correction = calibrateBias(model, whole, whole.size(), kMaxCorrectionDegree, true);
   }
   if (refit_mode == "yes" || (refit_mode == "auto" && n >= kMinSigmaImages))
     sigma = calibrateSigma(model, data.samples, n);
@@ -138,7 +142,7 @@ int runCalibrateUnit(int argc, char** argv) {
               << ", \"beta_within_1sigma_after\": " << sigma->beta_after.within[0];
   const InputEnvelope envelope = inputEnvelopeOf(model.meta);
   std::cout << ", \"lit_sites_min\": " << envelope.min_sites << ", \"lit_sites_max\": " << envelope.max_sites;
-  if (correction) std::cout << ", \"correction_degree\": " << correction->degree;
+  if (correction) std::cout << ", \"correction_degree_added\": " << correction->degree;
   std::cout << ", \"refit\": " << (sigma ? "true" : "false");
   if (mismatch)
     std::cout << ", \"mismatch_level\": " << mismatch->level << ", \"mismatch_threshold\": " << mismatch->threshold;

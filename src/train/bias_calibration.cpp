@@ -35,12 +35,15 @@ Eigen::MatrixXd fit(const Eigen::MatrixXd& basis, const Eigen::MatrixXd& errors,
 
 }  // namespace
 
-BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree) {
+BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree,
+                              bool add_to_model_correction) {
   if (max_degree < AngleCorrection::kNone || max_degree > AngleCorrection::kMaxDegree)
     throw std::invalid_argument("bias calibration: maximum degree " + std::to_string(max_degree) + " is outside " +
                                 std::to_string(AngleCorrection::kNone) + ".." +
                                 std::to_string(AngleCorrection::kMaxDegree));
-  model.meta.angle_correction = AngleCorrection{};  // the network's own bias is what is fitted
+  // The network's own bias is what is fitted, or what the model's correction leaves of it.
+  const AngleCorrection base = add_to_model_correction ? model.meta.angle_correction : AngleCorrection{};
+  model.meta.angle_correction = base;
   const std::vector<HeldOutPrediction> held_out = predictHeldOut(model, data, max_samples, "bias calibration");
   if (held_out.empty()) throw std::invalid_argument("bias calibration: the model found no sun in any sample");
 
@@ -104,9 +107,16 @@ BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t
   if (c.degree != AngleCorrection::kNone) {
     const auto terms = static_cast<Eigen::Index>(AngleCorrection::termCount(c.degree));
     const Eigen::MatrixXd coefficients = basis.leftCols(terms).colPivHouseholderQr().solve(errors);
-    correction.degree = c.degree;
-    correction.alpha.assign(coefficients.col(0).data(), coefficients.col(0).data() + terms);
-    correction.beta.assign(coefficients.col(1).data(), coefficients.col(1).data() + terms);
+    // The terms of a lower degree are the first of a higher one's: the sum
+    // of two corrections is their coefficients added.
+    correction.degree = std::max(base.degree, c.degree);
+    const std::size_t total_terms = AngleCorrection::termCount(correction.degree);
+    correction.alpha.resize(total_terms, 0.0);
+    correction.beta.resize(total_terms, 0.0);
+    for (Eigen::Index k = 0; k < terms; ++k) {
+      correction.alpha[static_cast<std::size_t>(k)] += coefficients(k, 0);
+      correction.beta[static_cast<std::size_t>(k)] += coefficients(k, 1);
+    }
     correction.validate();
     residual -= basis.leftCols(terms) * coefficients;
   }
@@ -116,7 +126,7 @@ BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t
   c.rms_beta_after_deg = rmsDeg(residual.col(1));
 
   YAML::Node metrics = YAML::Load(model.meta.metrics_yaml);
-  metrics["angle_correction_degree"] = c.degree;
+  metrics["angle_correction_degree"] = correction.degree;
   metrics["angle_correction_samples"] = c.samples;
   metrics["angle_correction_cv_rms_deg_none"] = c.cross_validated_rms_deg.front();
   metrics["angle_correction_cv_rms_deg"] = c.cross_validated_rms_deg[static_cast<std::size_t>(c.degree + 1)];

@@ -29,8 +29,12 @@ struct BiasCalibration {
 // Replaces the model's angle correction with one of degree at most
 // `max_degree` (AngleCorrection::kNone..kMaxDegree) fitted on at most
 // `max_samples` evenly spaced samples of `data` (encoded with the model's input
-// spec) and records it in the model's metrics. Throws std::invalid_argument
-// for a bad degree, empty data or another input spec.
-BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree);
+// spec) and records it in the model's metrics. With `add_to_model_correction`
+// the model's correction stays and what it leaves is fitted and added to it
+// (a unit's refit on a few images on top of its family's wide-field
+// correction; `degree` is then the added part's). Throws
+// std::invalid_argument for a bad degree, empty data or another input spec.
+BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree,
+                              bool add_to_model_correction = false);
 
 }  // namespace dss
