@@ -425,8 +425,16 @@ UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const
   report.angle_rms_deg_after = angleRmsDeg(readSamples(model, samples));
   // The unit's own images widen the input envelope: its lit-pixel counts may
   // lie past the family's, which refused 1-7 % of a calibrated unit's images
-  // as out_of_distribution.
-  recordInputEnvelope(model.meta, covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.siteCounts())));
+  // as out_of_distribution. Only those with a whole spot in the fit: an
+  // image whose only spot the edge cuts may hold its flank alone (a 3x
+  // thesis_sa unit 44 um off centre: read up to 0.5 deg off), which the
+  // family's envelope refuses.
+  std::vector<int> whole_counts;
+  for (const SparseSample* s : report.whole_spot_samples)
+    whole_counts.push_back(
+        static_cast<int>(std::min<std::size_t>(s->pixels.size(), static_cast<std::size_t>(data.spec().max_sites))));
+  if (!whole_counts.empty())
+    recordInputEnvelope(model.meta, covering(inputEnvelopeOf(model.meta), measureInputEnvelope(whole_counts)));
   YAML::Node record = YAML::Load(report.toYaml());
   record["data"] = data_description;
   model.meta.unit_yaml = YAML::Dump(record);
