@@ -8,6 +8,7 @@
 
 #include "commands.h"
 #include "digital_sun_sensor/common/statistics.h"
+#include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
@@ -64,6 +65,10 @@ int runBenchInfer(int argc, char** argv) {
                    {"count", "N", "images timed through the sparse network", "200", false, false},
                    {"images", "N", "distinct simulated images, cycled (default: --count)", "", false, false},
                    {"dense-count", "N", "images timed through the dense network", "5", false, false},
+                   {"symmetry", "S",
+                    "--model: 'model' (average over the mirror images its file names) or 'none' (the image alone; "
+                    "calibration_node's ~inference_symmetry)",
+                    "model", false, false},
                    {"dense-aten-threads", "N",
                     "ATen threads of the dense run (its convolutions are ATen's; OpenBLAS gets 1)", "2", false, false},
                });
@@ -75,8 +80,9 @@ int runBenchInfer(int argc, char** argv) {
   const SensorConfig config = loadSensorFromArgs(args);
   sparse::configureThreads(static_cast<int>(args.getInt("aten-threads")),
                            static_cast<int>(args.getInt("blas-threads")));
-  const Model model = benchModel(args, config);
+  Model model = benchModel(args, config);
   model.net->eval();
+  if (!mirrorAverageFromName(args.get("symmetry"))) model.meta.inference_symmetry = InferenceSymmetry::kNone;
   const auto count = static_cast<std::uint64_t>(args.getInt("count"));
   const auto dense_count = static_cast<std::uint64_t>(args.getInt("dense-count"));
   const auto distinct = args.has("images") ? static_cast<std::uint64_t>(args.getInt("images")) : count;
@@ -106,7 +112,8 @@ int runBenchInfer(int argc, char** argv) {
   progress.finish();
   const double sparse_median = percentile(sparse_ms, 0.5), dense_median = percentile(dense_ms, 0.5);
   std::cout << "{\"bench\":\"infer\",\"sensor\":\"" << config.name << "\",\"arch\":\"" << model.meta.arch.name
-            << "\",\"parameters\":" << model.net->parameterCount() << ",\"sparse_threads\":\"" << sparse_threads
+            << "\",\"parameters\":" << model.net->parameterCount() << ",\"inference_symmetry\":\""
+            << inferenceSymmetryName(model.meta.inference_symmetry) << "\",\"sparse_threads\":\"" << sparse_threads
             << "\",\"dense_threads\":\"" << sparse::threadSummary() << "\",\"images\":" << count
             << ",\"mean_active_sites\":" << sites / std::max<std::uint64_t>(1, count)
             << ",\"sparse_median_ms\":" << sparse_median << ",\"sparse_p99_ms\":" << percentile(sparse_ms, 0.99)
