@@ -66,13 +66,13 @@ family() {
   [ -f $F.train.bag ] || { log "design: $train_count training images"; quiet "$DSS" generate --sensor $F.yaml --count $train_count --seed ${SEEDS[0]} --out $F.train.bag; }
   [ -f $F.sigma.bag ] || quiet "$DSS" generate --sensor $F.yaml --count 2000 --seed ${SEEDS[2]} --out $F.sigma.bag
   [ -f $F.test.bag ] || quiet "$DSS" generate --sensor $F.yaml --count 2000 --seed ${SEEDS[1]} --out $F.test.bag
-  if [ ! -f $F.dssmodel ] && [ "$EPOCHS" = 0 ]; then
-    log "design: the family model as created (log $F.train.log)"
-    "$DSS" train --data $F.train.bag --head geometric --max-images 400 --epochs 1 --lr 1e-12 --out $F.dssmodel \
+  if [ ! -f $F.dssmodel ]; then
+    # A head as created (EPOCHS=0) reads 400 images for its sigma and input envelope.
+    local max_images=0
+    [ "$EPOCHS" = 0 ] && max_images=400
+    log "design: the family model ($EPOCHS epochs; log $F.train.log)"
+    "$DSS" train --data $F.train.bag --head geometric --max-images $max_images --epochs "$EPOCHS" --out $F.dssmodel \
       >$F.train.log 2>&1
-  elif [ ! -f $F.dssmodel ]; then
-    log "design: training the family model ($EPOCHS epochs; log $F.train.log)"
-    "$DSS" train --data $F.train.bag --head geometric --epochs "$EPOCHS" --out $F.dssmodel >$F.train.log 2>&1
   fi
   # The spot-mismatch level of the design (what model_mismatch is judged against).
   [ -f $F.family.dssmodel ] || quiet "$DSS" calibrate-sigma --model $F.dssmodel --data $F.sigma.bag "${FAMILY_SIGMA[@]}" \

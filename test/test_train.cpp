@@ -14,6 +14,7 @@
 #include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/eval/uncertainty.h"
+#include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sim/random_mask.h"
@@ -198,6 +199,31 @@ TEST(Train, TrainingSetSmallerThanABatchTrains) {
   EXPECT_EQ(result.stop, TrainStop::finished);
   EXPECT_EQ(result.last.epoch, 1);
   EXPECT_TRUE(std::isfinite(result.last.best_val_mean_deg));
+}
+
+// --epochs 0: the model as created (a geometric head's design), validated
+// once and saved with its sigma and input envelope, its weights untouched.
+TEST(Train, ZeroEpochsWritesTheModelAsCreated) {
+  TrainingSet train{tinySet().spec()}, validation{tinySet().spec()};
+  tinySet().split(0.2, 1, train, validation);
+  TrainOptions options = tinyOptions();
+  options.epochs = 0;
+  std::atomic<bool> stop{false};
+  Trainer trainer(tinySensor(), train, validation, options);
+  const std::vector<float> created = trainer.flatWeights();
+  const TrainResult result = trainer.run({}, stop);
+  EXPECT_EQ(result.stop, TrainStop::finished);
+  EXPECT_EQ(trainer.flatWeights(), created);
+  EXPECT_TRUE(std::isfinite(result.last.val_alpha_mean_deg));
+  const std::string path = tempPath("as_created.dssmodel");
+  trainer.saveModel(path, "test");
+  const Model model = loadModel(path);
+  std::remove(path.c_str());
+  EXPECT_GT(inputEnvelopeOf(model.meta).max_sites, 0);
+  EXPECT_NE(model.meta.metrics_yaml.find("validation_alpha_mean_deg"), std::string::npos);
+  EXPECT_NE(model.meta.training_yaml.find("epochs_completed: 0"), std::string::npos) << model.meta.training_yaml;
+  options.epochs = -1;
+  EXPECT_THROW(options.validate(), std::invalid_argument);
 }
 
 // --init: training starts from the given model's weights, which must suit

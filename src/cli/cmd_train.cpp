@@ -57,7 +57,10 @@ int runTrain(int argc, char** argv) {
           {"checkpoint", "CKPT", "checkpoint file (default: MODEL.ckpt, or the --resume file)", "", false, false},
           {"checkpoint-minutes", "M", "minutes between checkpoints", defaultText(defaults.checkpoint_interval_s / 60),
            false, false},
-          {"epochs", "N", "epochs of the learning-rate schedule", std::to_string(defaults.epochs), false, false},
+          {"epochs", "N",
+           "epochs of the learning-rate schedule (0: write the model as created, validated, with its sigma and "
+           "input envelope fitted)",
+           std::to_string(defaults.epochs), false, false},
           {"batch", "B", "images per step", std::to_string(defaults.batch_size), false, false},
           {"lr", "LR", "peak learning rate (AdamW)", defaultText(defaults.learning_rate), false, false},
           {"weight-decay", "W", "AdamW decoupled weight decay", defaultText(defaults.weight_decay), false, false},

@@ -68,7 +68,7 @@ void TrainOptions::validate() const {
     if (!ok) throw std::invalid_argument("training option " + what);
   };
   require(batch_size >= 1, "batch_size must be >= 1");
-  require(epochs >= 1, "epochs must be >= 1");
+  require(epochs >= 0, "epochs must be >= 0");
   require(patience_epochs >= 0, "patience_epochs must be >= 0");
   require(learning_rate > 0 && std::isfinite(learning_rate), "learning_rate must be positive");
   require(warmup_fraction >= 0 && warmup_fraction < 1, "warmup_fraction must be in [0, 1)");
@@ -258,6 +258,14 @@ TrainResult Trainer::run(const std::function<void(const TrainProgress&)>& on_pro
     last_checkpoint = Clock::now();
   };
 
+  if (m.options.epochs == 0 && m.best_model_bytes.empty()) {
+    // The model as created (a geometric head's design, the physics prior):
+    // validated once, so that it is saved with its sigma and input envelope.
+    m.last.epoch = 0;
+    m.validate();
+    m.best_epoch = m.last.best_epoch = -1;
+    report(false);
+  }
   int epochs_without_improvement = m.best_epoch < 0 ? 0 : m.epoch - 1 - m.best_epoch;
   while (m.epoch < m.options.epochs) {
     const auto order = m.epochOrder(m.epoch);

@@ -42,7 +42,7 @@ struct TrainOptions {
   // "classic"; empty: the init model's, else "auto".
   std::string head;
   int batch_size = 64;
-  int epochs = 20;                  // the learning-rate schedule spans this many epochs
+  int epochs = 20;                  // the learning-rate schedule spans this many (0: the model as created)
   int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
   double learning_rate = 5e-4;      // peak, after a linear warm-up (measured: docs/training.md)
   double warmup_fraction = 0.03;    // of all steps
