@@ -7,13 +7,16 @@
 # (models/<model>.calib.yaml: calibration_node's fallback) and evaluates it on
 # the same test bag. Bags go to DATA_DIR (default .ws/models_data), never into git.
 #   scripts/train_models.sh [MODEL...]   (default: every recipe)
-# Bags and finished models already present are reused; an interrupted training
-# resumes from its checkpoint. Results: DATA_DIR/<model>.*.json.
+#   MODELS_DIR=/tmp/repro scripts/train_models.sh MODEL   reproduce beside the shipped file
+# Bags and finished models already present are reused (a shipped model in
+# MODELS_DIR, default models/, is evaluated, not retrained); an interrupted
+# training resumes from its checkpoint. Results: DATA_DIR/<model>.*.json.
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
 source "$(dirname "$0")/train_steps.sh"
 DATA="${DATA_DIR:-$WS/models_data}"
-mkdir -p "$DATA" "$ROOT/models"
+MODELS="${MODELS_DIR:-$ROOT/models}"
+mkdir -p "$DATA" "$MODELS"
 
 # make_bag MODEL NAME:COUNT:SEED:OFFSET:SAMPLING:ANOMALIES -> prints the bag's path (generated if missing)
 make_bag() {

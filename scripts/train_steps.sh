@@ -3,14 +3,14 @@
 #   train_and_evaluate NAME TRAIN_BAGS TEST_BAG SIGMA_BAGS EPOCHS ARCH CORRECTION SYMMETRY [DSS TRAIN OPTION...]
 # (scripts/train_models.sh passes the recipe's learning rate, seed and head options)
 # TRAIN_BAGS and SIGMA_BAGS: one bag, or several separated by spaces (e.g. a
-# nominal bag and one with an anomaly). Trains models/NAME.dssmodel unless it
+# nominal bag and one with an anomaly). Trains MODELS/NAME.dssmodel (MODELS: default models/) unless it
 # exists (resuming DATA/NAME.ckpt when present), fits its angle correction
 # (calibrate-sigma --correction-degree CORRECTION: a maximum degree, or keep)
 # and its sigma on all images of the sigma bags; with a SYMMETRY other than
 # keep (flips, dihedral), sets the model's inference symmetry and refits its
 # sigma on the same bags; evaluates it on the test bag, then calibrates the
 # centroid baseline on the first 1000 images of the first training bag
-# (models/NAME.calib.yaml) and evaluates it on the same test bag. Results:
+# (MODELS/NAME.calib.yaml) and evaluates it on the same test bag. Results:
 # DATA/NAME.*.json and .csv.
 train_and_evaluate() {
   local name="$1" test="$3" epochs="$5" arch="$6" correction="$7" symmetry="$8"
@@ -20,7 +20,8 @@ train_and_evaluate() {
   shift 8
   for bag in "${train[@]}"; do train_data+=(--data "$bag"); done
   for bag in "${sigma[@]}"; do sigma_data+=(--data "$bag"); done
-  local model="$ROOT/models/$name.dssmodel" calib="$ROOT/models/$name.calib.yaml" ckpt="$DATA/$name.ckpt"
+  local model="${MODELS:-$ROOT/models}/$name.dssmodel" calib="${MODELS:-$ROOT/models}/$name.calib.yaml"
+  local ckpt="$DATA/$name.ckpt"
   if [ ! -f "$model" ]; then
     local resume=()
     [ -f "$ckpt" ] && resume=(--resume "$ckpt")
