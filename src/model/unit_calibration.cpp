@@ -430,9 +430,7 @@ UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const
   // thesis_sa unit 44 um off centre: read up to 0.5 deg off), which the
   // family's envelope refuses.
   std::vector<int> whole_counts;
-  for (const SparseSample* s : report.whole_spot_samples)
-    whole_counts.push_back(
-        static_cast<int>(std::min<std::size_t>(s->pixels.size(), static_cast<std::size_t>(data.spec().max_sites))));
+  for (const SparseSample* s : report.whole_spot_samples) whole_counts.push_back(data.siteCount(*s));
   if (!whole_counts.empty())
     recordInputEnvelope(model.meta, covering(inputEnvelopeOf(model.meta), measureInputEnvelope(whole_counts)));
   YAML::Node record = YAML::Load(report.toYaml());

@@ -34,7 +34,9 @@ class TrainingSet {
   const std::vector<SparseSample>& samples() const { return samples_; }
   std::size_t size() const { return samples_.size(); }
   std::size_t memoryBytes() const;
-  // Active sites each sample gives the network (its pixels, at most spec.max_sites).
+  // Active sites a sample gives the network (its pixels, at most spec.max_sites).
+  int siteCount(const SparseSample& sample) const;
+  // The same for each sample.
   std::vector<int> siteCounts() const;
 
   // Deterministic split: a seeded shuffle, the first `validation_fraction`
