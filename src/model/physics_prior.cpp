@@ -22,7 +22,17 @@ std::pair<double, double> centroidSlopes(const SensorConfig& config, double angl
 }
 
 GeometricPrior geometricPrior(const SensorConfig& config, int size, double angle_scale_rad) {
+  return geometricPrior(config, MaskGeometry::nominalOf(config), size, angle_scale_rad);
+}
+
+GeometricPrior geometricPrior(const SensorConfig& config, const MaskGeometry& unit, int size, double angle_scale_rad) {
   MaskGeometry centre = MaskGeometry::nominalOf(config);
+  centre.height_um = unit.height_um;
+  centre.offset_x_um = unit.offset_x_um;
+  centre.offset_y_um = unit.offset_y_um;
+  centre.rotation_rad = unit.rotation_rad;
+  centre.tilt_x_rad = unit.tilt_x_rad;
+  centre.tilt_y_rad = unit.tilt_y_rad;
   centre.apertures_um = {Eigen::Vector2d::Zero()};
   centre.aperture_diameters_um.resize(1);
   const double half_w = 0.5 * config.detector.width_px, half_h = 0.5 * config.detector.height_px;

@@ -14,6 +14,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/physics_prior.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "geometric_solve.h"
@@ -355,6 +356,12 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   report.standard_errors = GeometryFit::standardErrors(covariance);
   report.geometry_sigma_rad = geometrySigma(fine, p, covariance, design, images, targets, solve);
   geometry.setMaskGeometry(fine.apply(p));
+  if (model.meta.arch.geometric_prior_size > 0) {
+    const GeometricPrior prior =
+        geometricPrior(parseSensorConfig(model.meta.sensor_yaml, what + " (the model's sensor)"), fine.apply(p),
+                       model.meta.arch.geometric_prior_size, model.meta.angle_scale_rad);
+    model.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
+  }
   model.meta.geometry_sigma_rad = report.geometry_sigma_rad;
   report.after = geometry.maskGeometry();
   return report;

@@ -7,6 +7,7 @@
 
 #include <utility>
 
+#include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/sim/sensor_config.h"
 
 namespace dss {
@@ -25,5 +26,10 @@ struct GeometricPrior {
   double extent_x = 1.0, extent_y = 1.0;
 };
 GeometricPrior geometricPrior(const SensorConfig& config, int size, double angle_scale_rad);
+// The same through a built unit's mask height, offset, rotation and tilt
+// (`unit`: the geometric head's fitted geometry, any pitch): the coarse
+// estimate and the lattice placements the field of view allows follow the
+// unit (a 3x wide_ma unit's spots at 60 deg lie past the design's extent).
+GeometricPrior geometricPrior(const SensorConfig& config, const MaskGeometry& unit, int size, double angle_scale_rad);
 
 }  // namespace dss
