@@ -579,5 +579,23 @@ TEST(SigmaCalibration, RescaledConstantStaysConstant) {
   EXPECT_DOUBLE_EQ(metrics["sigma_constant_beta_rad"].as<double>(), c.constant_sigma_beta_rad);
 }
 
+// calibrate-unit's rule between 25 and 100 images: a sigma far too small
+// for the errors is refitted, a sound or a generous one is left as it was.
+TEST(SigmaCalibration, RefitsOnlyASigmaThatIsTooSmall) {
+  Model model = createModel(tinySensor(), "resnet10_w16", 5);
+  model.net->eval();
+  model.setConstantSigma(1.0, 1.0);  // radians: every error within 1 sigma
+  EXPECT_FALSE(calibrateSigmaWhereTooSmall(model, tinySet(), 160, 0.5));
+  EXPECT_NEAR((*model.constantSigma())[0], 1.0, 1e-6);  // as set (the head holds it in float)
+  model.setConstantSigma(1e-9, 1e-9);  // none within 1 sigma
+  const std::optional<SigmaCalibration> c = calibrateSigmaWhereTooSmall(model, tinySet(), 160, 0.5);
+  ASSERT_TRUE(c);
+  EXPECT_LT(c->alpha_before.within[0], 0.5);
+  EXPECT_NEAR(c->alpha_after.within[0], 0.6827, 0.05);
+  EXPECT_NEAR(c->beta_after.within[0], 0.6827, 0.05);
+  const Prediction p = model.predictSamples({&tinySet().samples()[0]})[0];
+  EXPECT_GT(std::sqrt(p.alpha_variance_rad2), 1e-6);  // the model holds the refitted sigma
+}
+
 }  // namespace
 }  // namespace dss

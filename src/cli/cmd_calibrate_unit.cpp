@@ -115,12 +115,7 @@ int runCalibrateUnit(int argc, char** argv) {
   if (refit_mode == "yes" || (refit_mode == "auto" && n >= kMinSigmaImages)) {
     sigma = calibrateSigma(model, data.samples, n);
   } else if (refit_mode == "auto" && n >= kMinCorrectionImages) {
-    Model trial = deserializeModel(serializeModel(model), args.get("model"));
-    const SigmaCalibration c = calibrateSigma(trial, data.samples, n);
-    if (std::min(c.alpha_before.within[0], c.beta_before.within[0]) < kMinFamilyCoverage) {
-      model = std::move(trial);
-      sigma = c;
-    }
+    sigma = calibrateSigmaWhereTooSmall(model, data.samples, n, kMinFamilyCoverage);
   }
   std::optional<MismatchCalibration> mismatch;
   if (!(model.meta.mismatch_level > 0.0)) {

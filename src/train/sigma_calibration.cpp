@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <stdexcept>
@@ -124,6 +125,15 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
   }
   metrics["sigma_calibration_samples"] = c.samples;
   model.meta.metrics_yaml = YAML::Dump(metrics);
+  return c;
+}
+
+std::optional<SigmaCalibration> calibrateSigmaWhereTooSmall(Model& model, const TrainingSet& data,
+                                                            std::size_t max_samples, double min_coverage) {
+  Model trial = deserializeModel(serializeModel(model), "sigma calibration (a copy of the model)");
+  const SigmaCalibration c = calibrateSigma(trial, data, max_samples);
+  if (std::min(c.alpha_before.within[0], c.beta_before.within[0]) >= min_coverage) return std::nullopt;
+  model = std::move(trial);
   return c;
 }
 

@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstddef>
+#include <optional>
 
 #include "digital_sun_sensor/eval/uncertainty.h"
 #include "digital_sun_sensor/train/training_set.h"
@@ -38,5 +39,13 @@ struct SigmaCalibration {
 // averaged variances mix the head's two outputs. Throws std::invalid_argument when
 // `data` is empty or its spec differs from the model's.
 SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples);
+
+// The same, applied only where the model's sigma holds fewer than
+// `min_coverage` of the errors within 1 sigma on either axis (a built unit
+// less accurate than its family model: too few images to refit a sound
+// sigma, but enough to see one that is far too small); else the model is
+// left as it was and nothing is returned.
+std::optional<SigmaCalibration> calibrateSigmaWhereTooSmall(Model& model, const TrainingSet& data,
+                                                            std::size_t max_samples, double min_coverage);
 
 }  // namespace dss
