@@ -375,10 +375,11 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   const Eigen::MatrixXd covariance = fine.covariance(p, inliers);
   report.standard_errors = GeometryFit::standardErrors(covariance);
   report.geometry_sigma_rad = geometrySigma(fine, p, covariance, design, images, targets, solve);
-  geometry.setMaskGeometry(fine.apply(p));
+  const MaskGeometry fitted_mask = fine.apply(p);
+  geometry.setMaskGeometry(fitted_mask);
   if (model.meta.arch.geometric_prior_size > 0) {
     const GeometricPrior prior =
-        geometricPrior(parseSensorConfig(model.meta.sensor_yaml, what + " (the model's sensor)"), fine.apply(p),
+        geometricPrior(parseSensorConfig(model.meta.sensor_yaml, what + " (the model's sensor)"), fitted_mask,
                        model.meta.arch.geometric_prior_size, model.meta.angle_scale_rad);
     model.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
   }

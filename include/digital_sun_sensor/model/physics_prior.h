@@ -7,10 +7,11 @@
 
 #include <utility>
 
-#include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/sim/sensor_config.h"
 
 namespace dss {
+
+struct MaskGeometry;
 
 // d(angle / angle_scale) / d(normalized centroid) per axis of the nominal
 // sensor (pinhole + refraction), by central differences at normal incidence;
