@@ -1,4 +1,4 @@
-// Physics priors of a fresh model, from the sensor's nominal geometry: the
+// Physics priors of a model, from the sensor's nominal geometry (or a calibrated unit's): the
 // slope from the spot centroid to the angles, and for wide fields a table of
 // the angles over the spot position. Training then learns corrections.
 #pragma once
