@@ -42,7 +42,9 @@ Eigen::Vector3d MaskGeometry::apertureCentreUm(int i) const {
 }
 
 std::optional<Eigen::Vector2d> MaskGeometry::spotPx(int i, const Eigen::Vector3d& sun) const {
-  const auto hit = traceToDetector(apertureCentreUm(i), sun, GlassSlab{glass_thickness_um, glass_index});
+  const Eigen::Vector3d centre = apertureCentreUm(i);
+  const double glass_um = std::max(0.0, std::min(glass_thickness_um, centre.z() - air_above_exit_um));
+  const auto hit = traceToDetector(centre, sun, GlassSlab{glass_um, glass_index});
   if (!hit) return std::nullopt;
   return Eigen::Vector2d(*hit / pitch_um);
 }

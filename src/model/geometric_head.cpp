@@ -50,7 +50,8 @@ SpotReads readSpots(const torch::Tensor& site_um, const torch::Tensor& weight, c
 
 }  // namespace
 
-SensorGeometryImpl::SensorGeometryImpl(int apertures, int groups) : group_count_(groups) {
+SensorGeometryImpl::SensorGeometryImpl(int apertures, int groups, double air_above_exit_um)
+    : group_count_(groups), air_above_exit_um_(air_above_exit_um) {
   if (apertures < 1 || groups < 1 || groups > apertures)
     throw std::invalid_argument("sensor geometry: needs at least one aperture and 1..apertures groups");
   height_um = register_buffer("height_um", torch::ones({1}, kDouble));
@@ -105,9 +106,10 @@ torch::Tensor SensorGeometryImpl::spotsUm(const torch::Tensor& angles_rad) const
   const auto centres = mask_frame.matmul(maskRotation(rotation_rad, tilt_rad).t()) +
                        torch::cat({offset_um, height_um}).unsqueeze(0);  // [K, 3], exit face
   const auto z = centres.select(1, 2);
-  // A mask lower than the glass (a large negative height error) rests on a
-  // thinner slab: the glass never extends above the aperture.
-  const auto glass = torch::minimum(glass_thickness_um.expand_as(z), z);
+  // A mask lower than the glass (a negative height error) rests on a
+  // thinner slab: the glass never extends above the aperture's exit face,
+  // air_above_exit_um_ below the height (the mid-plane).
+  const auto glass = torch::minimum(glass_thickness_um.expand_as(z), (z - air_above_exit_um_).clamp_min(0.0));
   const auto air = z - glass;
   // The light travels along -s, s ~ (tan alpha, tan beta, 1): lateral drift
   // per unit drop s_xy / s_z in air; in glass tan(refracted) along s_xy.
@@ -138,6 +140,7 @@ MaskGeometry SensorGeometryImpl::maskGeometry() const {
   m.tilt_y_rad = tilt_rad[1].item<double>();
   m.glass_thickness_um = glass_thickness_um.item<double>();
   m.glass_index = glass_index.item<double>();
+  m.air_above_exit_um = air_above_exit_um_;
   const auto a = apertures_um.contiguous();
   const auto xy = a.accessor<double, 2>();
   for (std::int64_t k = 0; k < a.size(0); ++k) m.apertures_um.emplace_back(xy[k][0], xy[k][1]);

@@ -30,6 +30,7 @@ GeometryDesign geometryDesignOf(const SensorConfig& config) {
   // and the other at the exit (the baseline's fitted height absorbs the
   // same t / 2).
   d.height_um = (config.mask.height_mm + 0.5 * config.mask.thickness_mm) * 1000.0;
+  d.air_above_exit_um = 0.5 * config.mask.thickness_mm * 1000.0;
   if (config.cover_glass.enabled) {
     d.glass_thickness_um = config.cover_glass.thickness_mm * 1000.0;
     d.glass_index = config.cover_glass.refractive_index;

@@ -137,6 +137,7 @@ void setGeometric(const SensorConfig& config, const HeadOptions& head, ArchSpec&
   arch.geometric_head = true;
   arch.geometric_apertures = static_cast<int>(design.apertures_um.size());
   arch.geometric_groups = design.groupCount();
+  arch.geometric_air_above_exit_um = design.air_above_exit_um;
   arch.geometric_gate_um = geometricGateUm(config, design);
   arch.detector_pitch_um = config.detector.pitch_um;
   arch.detector_width_px = config.detector.width_px;
@@ -212,6 +213,7 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "geometric_head" << YAML::Value << true;
     e << YAML::Key << "geometric_apertures" << YAML::Value << m.arch.geometric_apertures;
     e << YAML::Key << "geometric_groups" << YAML::Value << m.arch.geometric_groups;
+    e << YAML::Key << "geometric_air_above_exit_um" << YAML::Value << m.arch.geometric_air_above_exit_um;
     e << YAML::Key << "geometric_gate_um" << YAML::Value << m.arch.geometric_gate_um;
     e << YAML::Key << "detector_pitch_um" << YAML::Value << m.arch.detector_pitch_um;
     e << YAML::Key << "detector_width_px" << YAML::Value << m.arch.detector_width_px;
@@ -329,6 +331,8 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     m.arch.geometric_head = get<bool>(a, "geometric_head", origin, "arch.");
     m.arch.geometric_apertures = get<int>(a, "geometric_apertures", origin, "arch.");
     m.arch.geometric_groups = get<int>(a, "geometric_groups", origin, "arch.");
+    if (a["geometric_air_above_exit_um"])
+      m.arch.geometric_air_above_exit_um = get<double>(a, "geometric_air_above_exit_um", origin, "arch.");
     m.arch.geometric_gate_um = get<double>(a, "geometric_gate_um", origin, "arch.");
     m.arch.detector_pitch_um = get<double>(a, "detector_pitch_um", origin, "arch.");
     m.arch.detector_width_px = get<int>(a, "detector_width_px", origin, "arch.");

@@ -33,6 +33,7 @@ GeometricPrior geometricPrior(const SensorConfig& config, const MaskGeometry& un
   centre.rotation_rad = unit.rotation_rad;
   centre.tilt_x_rad = unit.tilt_x_rad;
   centre.tilt_y_rad = unit.tilt_y_rad;
+  centre.air_above_exit_um = unit.air_above_exit_um;
   centre.apertures_um = {Eigen::Vector2d::Zero()};
   centre.aperture_diameters_um.resize(1);
   const double half_w = 0.5 * config.detector.width_px, half_h = 0.5 * config.detector.height_px;

@@ -67,7 +67,8 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
     geometric_prior_extent_ = register_buffer("geometric_prior_extent", torch::ones({2}));
   }
   if (arch.geometric_head) {
-    geometry_ = register_module("geometry", SensorGeometry(arch.geometric_apertures, arch.geometric_groups));
+    geometry_ = register_module(
+        "geometry", SensorGeometry(arch.geometric_apertures, arch.geometric_groups, arch.geometric_air_above_exit_um));
     const int monomials = (arch.centroid_degree + 1) * (arch.centroid_degree + 2) / 2 - 1;
     geometric_correction_ = register_module("geometric_correction", torch::nn::Linear(monomials, 2));
   }

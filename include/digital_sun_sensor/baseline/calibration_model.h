@@ -28,6 +28,11 @@ struct MaskGeometry {
   double tilt_y_rad = 0.0;
   double glass_thickness_um = 0.0;  // cover glass on the detector (0: none)
   double glass_index = 1.0;
+  // The part of the height above the mask's exit face, always in air (the
+  // geometric head's height is the mid-plane, t / 2 above the exit face: a
+  // mask lowered into a thinner glass keeps it above the glass). 0: the
+  // baseline's fitted height, which absorbs it.
+  double air_above_exit_um = 0.0;
   std::vector<Eigen::Vector2d> apertures_um;  // centres in the mask frame
   std::vector<double> aperture_diameters_um;  // design values (association by spot size)
 

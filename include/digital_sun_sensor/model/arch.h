@@ -100,6 +100,7 @@ struct ArchSpec {
   // geometry itself is buffers of the model file (geometry.*).
   bool geometric_head = false;
   int geometric_apertures = 0, geometric_groups = 0;  // groups: apertures whose spots overlap read as one
+  double geometric_air_above_exit_um = 0.0;           // MaskGeometry::air_above_exit_um (absent in older files: 0)
   double geometric_gate_um = 0.0;                     // sites farther from every spot are not read
   double detector_pitch_um = 0.0;                     // the detector's pixels, to place the sites
   int detector_width_px = 0, detector_height_px = 0;

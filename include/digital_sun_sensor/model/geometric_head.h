@@ -21,7 +21,8 @@ namespace dss {
 // own values after a unit calibration.
 class SensorGeometryImpl : public torch::nn::Module {
  public:
-  SensorGeometryImpl(int apertures, int groups);
+  // air_above_exit_um: MaskGeometry::air_above_exit_um, fixed by the design.
+  SensorGeometryImpl(int apertures, int groups, double air_above_exit_um = 0.0);
   // The design, with offset, rotation and tilt zero. Throws
   // std::invalid_argument naming what does not fit the constructor's counts
   // or is out of range.
@@ -54,6 +55,7 @@ class SensorGeometryImpl : public torch::nn::Module {
 
  private:
   std::int64_t group_count_;
+  double air_above_exit_um_ = 0.0;
 };
 TORCH_MODULE(SensorGeometry);
 

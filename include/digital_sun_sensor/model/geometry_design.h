@@ -20,6 +20,7 @@ struct GeometryDesign {
   std::vector<double> fluxes;       // relative flux per aperture (open area); empty: equal
   double glass_thickness_um = 0.0;  // cover glass on the detector (0: none)
   double glass_index = 1.0;
+  double air_above_exit_um = 0.0;  // of the height, above the exit face: always in air (MaskGeometry)
 
   int groupCount() const;
 };
