@@ -1,4 +1,5 @@
-// Whole-image rendering: determinism, symmetry, truth, anomalies, as-built errors.
+// Whole-image rendering: determinism, symmetry, truth, anomalies, as-built errors
+// (a unit's mask height in its spots' diffraction).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -99,6 +100,28 @@ TEST(Renderer, AsBuiltOffsetMovesTheSpot) {
   Renderer(built).expectedElectrons(Eigen::Vector3d::UnitZ(), &t);
   EXPECT_NEAR(t.spots[0].x_px * 1.55, built.mask_offset_um.x(), 1e-6);
   EXPECT_NEAR(t.spots[0].y_px * 1.55, built.mask_offset_um.y(), 1e-6);
+}
+
+TEST(Renderer, AsBuiltHeightChangesTheSpotsDiffraction) {
+  // A unit whose mask sits 20 um higher above its glass window (an air gap)
+  // is the design with its mask 20 um higher: the same light, diffraction
+  // included, not the design's spots moved; and a lower mask rests on a
+  // thinner window.
+  const Eigen::Vector3d sun = sunVectorFromAngles(50 * kRadPerDeg, 20 * kRadPerDeg);
+  for (const double change_um : {20.0, -20.0}) {
+    const SensorConfig design = shipped("wide_ma");
+    SensorInstance unit = SensorInstance::nominalOf(design);
+    unit.nominal = false;
+    unit.mask_offset_um.z() = change_um;
+    std::vector<std::string> moved = {"mask.height_mm=" + std::to_string(0.5 + change_um / 1000.0)};
+    if (change_um < 0) moved.push_back("cover_glass.thickness_mm=" + std::to_string(0.5 + change_um / 1000.0));
+    const cv::Mat built = Renderer(unit).expectedElectrons(sun, nullptr);
+    const cv::Mat drawn =
+        Renderer(SensorInstance::nominalOf(shipped("wide_ma", moved))).expectedElectrons(sun, nullptr);
+    EXPECT_LT(cv::norm(built, drawn, cv::NORM_INF), 1e-3 * cv::norm(drawn, cv::NORM_INF)) << change_um << " um";
+    const cv::Mat nominal = Renderer(SensorInstance::nominalOf(design)).expectedElectrons(sun, nullptr);
+    EXPECT_GT(cv::norm(nominal, drawn, cv::NORM_INF), 0.05 * cv::norm(drawn, cv::NORM_INF)) << change_um << " um";
+  }
 }
 
 TEST(Renderer, AnomaliesShowUp) {

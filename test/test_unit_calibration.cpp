@@ -3,7 +3,8 @@
 // noise-free images with the network frozen, and its estimates come back to
 // the design's accuracy; the unit model round-trips and is refused for
 // another design; the spot-mismatch flag fires on the uncalibrated unit and
-// stays quiet on the design and on the calibrated unit.
+// stays quiet on the design and on the calibrated unit; the angle correction
+// follows the unit's mask height.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -19,6 +20,7 @@
 #include "digital_sun_sensor/sim/random_mask.h"
 #include "digital_sun_sensor/sim/renderer.h"
 #include "digital_sun_sensor/sim/sensor_instance.h"
+#include "digital_sun_sensor/train/bias_calibration.h"
 
 namespace dss {
 namespace {
@@ -220,6 +222,85 @@ TEST(UnitCalibration, ToleranceSigmaIsTheErrorOfDrawnUnits) {
   for (std::size_t k = 0; k < 2; ++k) EXPECT_NEAR(twice[k] / typical[k], 2.0, 0.2);
   EXPECT_GT(rms / sigma, 1.0 / 1.6);
   EXPECT_LT(rms / sigma, 1.6);
+}
+
+TEST(UnitCalibration, AngleCorrectionFollowsTheUnitsMaskHeight) {
+  const SensorConfig design = drawnDesign(41);
+  Model model = untrainedModel(design);
+  // A design correction that is wrong at a mask 13 um higher:
+  // the change fitted there takes it back, in proportion to the height.
+  model.meta.angle_correction.degree = 1;
+  model.meta.angle_correction.alpha = {2e-3, 1e-3, 0.0};
+  model.meta.angle_correction.beta = {-3e-3, 0.0, 1e-3};
+  SensorInstance higher = SensorInstance::nominalOf(design);
+  higher.nominal = false;
+  higher.mask_offset_um = Eigen::Vector3d(0.0, 0.0, 13.0);
+  const TrainingSet moved = render(higher, model.meta.input, 60, 11, false);
+  const BiasCalibration fit = calibrateHeightCorrection(model, moved, 13.0, 60, 2);
+  ASSERT_EQ(model.meta.height_corrections.size(), 1u);
+  EXPECT_GE(fit.degree, 0);
+  EXPECT_LT(fit.rms_alpha_after_deg, 0.2 * fit.rms_alpha_before_deg);
+  EXPECT_LT(fit.rms_beta_after_deg, 0.2 * fit.rms_beta_before_deg);
+  // The design's geometry and correction stay.
+  EXPECT_EQ(model.heightChangeUm(), 0.0);
+  EXPECT_EQ(model.meta.angle_correction.alpha[0], 2e-3);
+  const auto design_bias = model.meta.angle_correction.bias(0.3, -0.2);
+  EXPECT_EQ(model.angleCorrection().bias(0.3, -0.2), design_bias);
+  const HeightCorrection& change = model.meta.height_corrections.front();
+  EXPECT_EQ(change.height_change_um, 13.0);
+  for (int axis = 0; axis < 2; ++axis)  // what the design's correction adds, taken back
+    EXPECT_NEAR(change.change.bias(0.3, -0.2)[axis], -design_bias[axis], 3e-4);
+
+  // A unit 6.5 um higher gets half the change; after a round trip through
+  // the file (the design's height comes from the embedded sensor config).
+  MaskGeometry unit = model.net->geometry()->maskGeometry();
+  unit.height_um += 6.5;
+  model.net->geometry()->setMaskGeometry(unit);
+  const std::string path = ::testing::TempDir() + "/height.dssmodel";
+  saveModel(model, path);
+  const Model loaded = loadModel(path, &design);
+  std::remove(path.c_str());
+  EXPECT_NEAR(loaded.heightChangeUm(), 6.5, 1e-9);
+  ASSERT_EQ(loaded.meta.height_corrections.size(), 1u);
+  for (int axis = 0; axis < 2; ++axis)
+    EXPECT_NEAR(loaded.angleCorrection().bias(0.3, -0.2)[axis],
+                design_bias[axis] + 0.5 * change.change.bias(0.3, -0.2)[axis], 1e-12);
+  // A unit lower than the design has no entry on its side: the design's.
+  unit.height_um -= 13.0;
+  model.net->geometry()->setMaskGeometry(unit);
+  EXPECT_EQ(model.angleCorrection().bias(0.3, -0.2), design_bias);
+  // Fitted on a unit's geometry it would be relative to the unit: refused.
+  EXPECT_THROW(calibrateHeightCorrection(model, moved, 13.0, 60, 2), std::invalid_argument);
+  // Two entries for one height are refused at load.
+  model.meta.height_corrections.push_back(change);
+  saveModel(model, path);
+  EXPECT_THROW(loadModel(path, &design), ModelError);
+  std::remove(path.c_str());
+}
+
+TEST(UnitCalibration, HeightCorrectionsInterpolateBetweenTheirHeights) {
+  AngleCorrection design;
+  design.degree = 0;
+  design.alpha = {1e-4};
+  design.beta = {0.0};
+  auto constant = [](double height_um, double value) {
+    HeightCorrection h;
+    h.height_change_um = height_um;
+    h.change.degree = 0;
+    h.change.alpha = {value};
+    h.change.beta = {-value};
+    return h;
+  };
+  const std::vector<HeightCorrection> entries = {constant(20.0, 1.5e-3), constant(10.0, 1e-3), constant(-20.0, 4e-4)};
+  auto alpha_change = [&](double height_um) {
+    return UnitAngleCorrection(design, entries, height_um).bias(0, 0)[0] - 1e-4;
+  };
+  EXPECT_DOUBLE_EQ(alpha_change(0.0), 0.0);
+  EXPECT_NEAR(alpha_change(5.0), 0.5e-3, 1e-15);    // between the design and +10
+  EXPECT_NEAR(alpha_change(15.0), 1.25e-3, 1e-15);  // between +10 and +20
+  EXPECT_NEAR(alpha_change(30.0), 2e-3, 1e-15);     // along +10 .. +20 beyond
+  EXPECT_NEAR(alpha_change(-10.0), 2e-4, 1e-15);    // the other side's own
+  EXPECT_NEAR(UnitAngleCorrection(design, entries, 15.0).bias(0, 0)[1], -1.25e-3, 1e-15);
 }
 
 TEST(UnitCalibration, RefusesAModelWithoutAGeometricHead) {

@@ -17,6 +17,7 @@ int runCalibrate(int argc, char** argv);
 int runEval(int argc, char** argv);
 int runTrain(int argc, char** argv);
 int runCalibrateSigma(int argc, char** argv);
+int runCalibrateHeight(int argc, char** argv);
 int runCalibrateUnit(int argc, char** argv);
 int runRecalibrate(int argc, char** argv);
 int runReport(int argc, char** argv);

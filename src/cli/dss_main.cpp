@@ -16,6 +16,7 @@ const char* kUsage =
     "  calibrate  fit the conventional baseline (centroid + calibration model) to a labelled bag\n"
     "  train      train an SSCNN model on labelled bags (checkpoints, --resume)\n"
     "  calibrate-sigma  refit the level of a model's predicted sigma on held-out labelled images\n"
+    "  calibrate-height fit how a family model's angle correction changes with the mask height\n"
     "  calibrate-unit   fit a geometric-head model's geometry to labelled images of one built unit\n"
     "  recalibrate      replay images with reference sun directions through the in-flight recalibration\n"
     "  eval       evaluate an estimator (sscnn:MODEL | centroid:CALIB) on a labelled bag: one JSON line\n"
@@ -34,6 +35,7 @@ int main(int argc, char** argv) {
     if (command == "calibrate") return dss::cli::runCalibrate(argc, argv);
     if (command == "train") return dss::cli::runTrain(argc, argv);
     if (command == "calibrate-sigma") return dss::cli::runCalibrateSigma(argc, argv);
+    if (command == "calibrate-height") return dss::cli::runCalibrateHeight(argc, argv);
     if (command == "calibrate-unit") return dss::cli::runCalibrateUnit(argc, argv);
     if (command == "recalibrate") return dss::cli::runRecalibrate(argc, argv);
     if (command == "eval") return dss::cli::runEval(argc, argv);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace dss {
 namespace {
@@ -56,6 +57,41 @@ void AngleCorrection::validate() const {
   for (const auto* c : {&alpha, &beta})
     for (double v : *c)
       if (!std::isfinite(v)) throw std::invalid_argument("angle correction has a non-finite coefficient");
+}
+
+void HeightCorrection::validate() const {
+  if (!std::isfinite(height_change_um) || height_change_um == 0.0)
+    throw std::invalid_argument("height correction: the height change must be finite and non-zero");
+  change.validate();
+}
+
+UnitAngleCorrection::UnitAngleCorrection(const AngleCorrection& design, const std::vector<HeightCorrection>& by_height,
+                                         double height_change_um)
+    : design_(design) {
+  // The entries on this side, nearest the design first, after the design's own (0, none).
+  std::vector<std::pair<double, const AngleCorrection*>> side{{0.0, nullptr}};
+  for (const HeightCorrection& h : by_height)
+    if (h.change.active() && height_change_um * h.height_change_um > 0.0)
+      side.emplace_back(std::abs(h.height_change_um), &h.change);
+  if (side.size() < 2) return;
+  std::sort(side.begin(), side.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  const double distance = std::abs(height_change_um);
+  std::size_t upper = 1;
+  while (upper + 1 < side.size() && side[upper].first < distance) ++upper;
+  const double t = (distance - side[upper - 1].first) / (side[upper].first - side[upper - 1].first);
+  changes_ = {side[upper - 1].second, side[upper].second};
+  weights_ = {1.0 - t, t};
+}
+
+std::array<double, 2> UnitAngleCorrection::bias(double a, double b) const {
+  std::array<double, 2> out = design_.bias(a, b);
+  for (std::size_t k = 0; k < 2; ++k) {
+    if (!changes_[k]) continue;
+    const std::array<double, 2> change = changes_[k]->bias(a, b);
+    out[0] += weights_[k] * change[0];
+    out[1] += weights_[k] * change[1];
+  }
+  return out;
 }
 
 }  // namespace dss

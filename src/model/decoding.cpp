@@ -34,6 +34,7 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
   // rows (encodeImages): their angles are mapped back and averaged, the
   // correction fitted to that average is applied to it, and the class is the
   // image's own.
+  const UnitAngleCorrection correction = angleCorrection();
   const std::vector<PixelTransform> transforms = symmetryTransforms(meta.inference_symmetry);
   const auto group = static_cast<std::int64_t>(transforms.size());
   if (angles.size(0) % group != 0)
@@ -56,7 +57,7 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
       if (margin) p.code_margin = std::min(p.code_margin, (*margin)[i + g]);
       if (residual) p.spot_mismatch = std::max(p.spot_mismatch, (*residual)[i + g] / meta.mismatch_level);
     }
-    const auto bias = meta.angle_correction.bias(alpha, beta);
+    const auto bias = correction.bias(alpha, beta);
     p.alpha_rad = (alpha - bias[0]) * s;
     p.beta_rad = (beta - bias[1]) * s;
     const double site_factor = meta.sigma_site_law.factor(counts[static_cast<std::size_t>(i)]);
@@ -120,6 +121,16 @@ std::vector<Prediction> Model::predictSamples(const std::vector<const SparseSamp
   return predictInPasses(*this, samples, kSampleInputsPerPass, [&](const std::vector<const SparseSample*>& pass) {
     return encodeSamples(pass, meta.input, meta.inference_symmetry);
   });
+}
+
+double Model::heightChangeUm() const {
+  const SensorGeometry geometry = net->geometry();
+  if (!geometry || !geometry->designHeightUm()) return 0.0;
+  return geometry->height_um.item<double>() - *geometry->designHeightUm();
+}
+
+UnitAngleCorrection Model::angleCorrection() const {
+  return {meta.angle_correction, meta.height_corrections, meta.height_corrections.empty() ? 0.0 : heightChangeUm()};
 }
 
 }  // namespace dss

@@ -98,6 +98,7 @@ void SensorGeometryImpl::setDesign(const GeometryDesign& design) {
   }
   glass_thickness_um.fill_(design.glass_thickness_um);
   glass_index.fill_(design.glass_index);
+  setDesignHeight(design);
 }
 
 torch::Tensor SensorGeometryImpl::spotsUm(const torch::Tensor& angles_rad) const {

@@ -239,6 +239,18 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "beta" << YAML::Value << YAML::Flow << m.angle_correction.beta;
     e << YAML::EndMap;
   }
+  if (!m.height_corrections.empty()) {
+    e << YAML::Key << "angle_correction_height" << YAML::Value << YAML::BeginSeq;
+    for (const HeightCorrection& h : m.height_corrections) {
+      e << YAML::BeginMap;
+      e << YAML::Key << "height_change_um" << YAML::Value << h.height_change_um;
+      e << YAML::Key << "degree" << YAML::Value << h.change.degree;
+      e << YAML::Key << "alpha" << YAML::Value << YAML::Flow << h.change.alpha;
+      e << YAML::Key << "beta" << YAML::Value << YAML::Flow << h.change.beta;
+      e << YAML::EndMap;
+    }
+    e << YAML::EndSeq;
+  }
   e << YAML::Key << "inference_symmetry" << YAML::Value << inferenceSymmetryName(m.inference_symmetry);
   if (m.sigma_site_law.active()) {
     e << YAML::Key << "sigma_site_law" << YAML::Value << YAML::BeginMap;
@@ -371,6 +383,29 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
       m.angle_correction.validate();
     } catch (const std::invalid_argument& e) {
       throw ModelError(origin + ": metadata key 'angle_correction': " + e.what());
+    }
+  }
+  if (const YAML::Node list = root["angle_correction_height"]) {  // absent: the correction stays with the height
+    const std::string key = "angle_correction_height";
+    if (!list.IsSequence()) throw ModelError(origin + ": metadata key '" + key + "' is not a list");
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      const std::string at = key + "[" + std::to_string(i) + "].";
+      if (!list[i].IsMap()) throw ModelError(origin + ": metadata key '" + at + "' is not a map");
+      HeightCorrection h;
+      h.height_change_um = get<double>(list[i], "height_change_um", origin, at);
+      h.change.degree = get<int>(list[i], "degree", origin, at);
+      h.change.alpha = get<std::vector<double>>(list[i], "alpha", origin, at);
+      h.change.beta = get<std::vector<double>>(list[i], "beta", origin, at);
+      try {
+        h.validate();
+      } catch (const std::invalid_argument& e) {
+        throw ModelError(origin + ": metadata key '" + at + "': " + e.what());
+      }
+      for (const HeightCorrection& other : m.height_corrections)
+        if (other.height_change_um == h.height_change_um)
+          throw ModelError(origin + ": metadata key '" + key + "' holds two entries for " +
+                           std::to_string(h.height_change_um) + " um");
+      m.height_corrections.push_back(h);
     }
   }
   if (const YAML::Node law = root["sigma_site_law"]) {  // absent: sigma does not follow the lit sites

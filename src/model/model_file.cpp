@@ -9,6 +9,7 @@
 #include "digital_sun_sensor/common/container.h"
 #include "digital_sun_sensor/common/file_io.h"
 #include "digital_sun_sensor/common/limits.h"
+#include "digital_sun_sensor/model/geometry_design.h"
 #include "digital_sun_sensor/model/model.h"
 
 namespace dss {
@@ -85,6 +86,14 @@ Model deserializeModel(const std::string& bytes, const std::string& origin, cons
   };
   for (auto& p : m.net->named_parameters()) restore(p.key(), p.value(), false);
   for (auto& b : m.net->named_buffers()) restore(b.key(), b.value(), true);
+  if (m.net->geometry()) {  // the tensors may hold a unit: the corrections were fitted on the design
+    try {
+      m.net->geometry()->setDesignHeight(
+          geometryDesignOf(parseSensorConfig(m.meta.sensor_yaml, origin + " (embedded sensor config)")));
+    } catch (const std::exception& e) {
+      throw ModelError(origin + ": no geometric design from the embedded sensor config: " + e.what());
+    }
+  }
   m.net->eval();
   return m;
 }

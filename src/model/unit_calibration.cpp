@@ -117,10 +117,12 @@ std::vector<ImageRead> readSamples(const Model& model, const std::vector<const S
       });
 }
 
-// Per image the solve's angles [rad] from which the head's learned
-// correction and the model's angle correction give the true angles
-// (fixed-point iteration: both corrections are small and smooth).
-std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector<UnitImage>& images) {
+// Per image the solve's angles [rad] through `in_use` from which the head's
+// learned correction and the model's angle correction (at that geometry's
+// mask height) give the true angles (fixed-point iteration: both corrections
+// are small and smooth).
+std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector<UnitImage>& images,
+                                           const MaskGeometry& in_use) {
   torch::NoGradGuard no_grad;
   const double s = model.meta.angle_scale_rad;
   const auto n = static_cast<std::int64_t>(images.size());
@@ -130,11 +132,14 @@ std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector
     truth[i][1] = images[static_cast<std::size_t>(i)].beta_rad / s;
   }
   auto target = truth.clone();
+  const auto& design_height_um = model.net->geometry()->designHeightUm();
+  const UnitAngleCorrection correction(model.meta.angle_correction, model.meta.height_corrections,
+                                       design_height_um ? in_use.height_um - *design_height_um : 0.0);
   for (int it = 0; it < 4; ++it) {
     auto output = model.net->correctSolvedAngles(target.to(torch::kFloat)).to(torch::kDouble).contiguous();
     const auto o = output.accessor<double, 2>();
     for (std::int64_t i = 0; i < n; ++i) {
-      const auto bias = model.meta.angle_correction.bias(o[i][0], o[i][1]);
+      const auto bias = correction.bias(o[i][0], o[i][1]);
       output[i][0] = o[i][0] - bias[0];
       output[i][1] = o[i][1] - bias[1];
     }
@@ -144,6 +149,10 @@ std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector
   const auto t = target.accessor<double, 2>();
   for (std::int64_t i = 0; i < n; ++i) out[static_cast<std::size_t>(i)] = Eigen::Vector2d(t[i][0], t[i][1]) * s;
   return out;
+}
+
+std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector<UnitImage>& images) {
+  return solvedTargets(model, images, model.net->geometry()->maskGeometry());
 }
 
 geometric::Options solveOptions(const Model& model) {
@@ -325,7 +334,7 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   SensorGeometryImpl& geometry = *model.net->geometry();
   UnitCalibrationReport report;
   report.images = static_cast<int>(images.size());
-  const std::vector<Eigen::Vector2d> targets = solvedTargets(model, images);
+  std::vector<Eigen::Vector2d> targets = solvedTargets(model, images);
   const geometric::Options solve = solveOptions(model);
   const geometric::Design design = geometric::designOf(geometry);
   report.before = design.mask;
@@ -355,6 +364,8 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   report.iterations += coarse.run(p, obs, options.max_iterations);
   geometric::Design fitted = design;
   fitted.mask = coarse.apply(p);
+  // The angle correction changes with the mask height: the targets at the coarse fit's.
+  targets = solvedTargets(model, images, fitted.mask);
   obs = observe(fitted, images, targets, solve, weight_unit);
   const std::vector<double> norms = weightedNorms(coarse, p, obs);
   const double sigma = std::max(robustSigma(norms), 1e-9);

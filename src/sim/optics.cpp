@@ -187,12 +187,13 @@ std::string ApertureGeometry::key() const {
   return s.str();
 }
 
-OpticalPath OpticalPath::from(const SensorConfig& c) {
+OpticalPath OpticalPath::from(const SensorConfig& c, double height_change_um) {
   OpticalPath p;
   p.mode = c.optics.mode;
-  p.glass_um = c.cover_glass.enabled ? c.cover_glass.thickness_mm * 1000.0 : 0.0;
+  const double height_um = c.mask.height_mm * 1000.0 + height_change_um;
+  p.glass_um = c.cover_glass.enabled ? std::min(c.cover_glass.thickness_mm * 1000.0, height_um) : 0.0;
   p.glass_index = c.cover_glass.enabled ? c.cover_glass.refractive_index : 1.0;
-  p.air_gap_um = c.mask.height_mm * 1000.0 - p.glass_um;
+  p.air_gap_um = height_um - p.glass_um;
   p.mask_thickness_um = c.mask.thickness_mm * 1000.0;
   p.vignetting = c.optics.vignetting;
   p.wavelengths_um = c.optics.wavelengths_um;

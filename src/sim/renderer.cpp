@@ -60,7 +60,8 @@ int subFovClass(const SensorConfig& config, const ImageTruth& truth) {
 
 Renderer::Renderer(SensorInstance instance) : instance_(std::move(instance)) {
   const auto& c = instance_.config;
-  cache_ = SpotCache::shared(OpticalPath::from(c), c.optics.psf_node_step_deg);
+  // A unit's mask height error changes its spots' diffraction, not only where they land.
+  cache_ = SpotCache::shared(OpticalPath::from(c, instance_.mask_offset_um.z()), c.optics.psf_node_step_deg);
   readout_ = std::make_unique<ReadoutTable>(c.noise);
   double mean_wavelength_um = 0.0, weight_sum = 0.0;
   for (std::size_t i = 0; i < c.optics.wavelengths_um.size(); ++i) {
@@ -110,7 +111,10 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
 
   cv::Mat rate(h, w, CV_32F, cv::Scalar(0));  // optical photoelectrons per second
   const Eigen::Vector3d sun_mask = instance_.mask_rotation.transpose() * sun;
-  const GlassSlab glass{cache_->path().glass_um, cache_->path().glass_index};
+  // Each aperture's own height decides where its light crosses the glass
+  // (a tilted mask: some above the window, some lower in it); the spot's
+  // shape comes from the unit's path at the mask centre.
+  const GlassSlab glass{c.cover_glass.enabled ? c.cover_glass.thickness_mm * 1000.0 : 0.0, cache_->path().glass_index};
   const double half_w_um = 0.5 * w * pitch, half_h_um = 0.5 * h * pitch;
   for (std::size_t i = 0; i < instance_.apertures.size(); ++i) {
     const Eigen::Vector3d ap = instance_.apertureCentreUm(i);

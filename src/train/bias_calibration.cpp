@@ -10,6 +10,7 @@
 
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sscnn.h"
 #include "held_out.h"
 
 namespace dss {
@@ -131,6 +132,55 @@ BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t
   metrics["angle_correction_cv_rms_deg_none"] = c.cross_validated_rms_deg.front();
   metrics["angle_correction_cv_rms_deg"] = c.cross_validated_rms_deg[static_cast<std::size_t>(c.degree + 1)];
   model.meta.metrics_yaml = YAML::Dump(metrics);
+  return c;
+}
+
+BiasCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data, double height_change_um,
+                                          std::size_t max_samples, int max_degree) {
+  const std::string what = "height correction";
+  SensorGeometry geometry = model.net->geometry();
+  if (!geometry) throw std::invalid_argument(what + ": the model's head is not geometric");
+  if (!std::isfinite(height_change_um) || height_change_um == 0.0)
+    throw std::invalid_argument(what + ": the height change must be finite and non-zero");
+  if (model.heightChangeUm() != 0.0)
+    throw std::invalid_argument(what +
+                                ": the model holds a unit's geometry (its mask height differs from the design's "
+                                "by " +
+                                std::to_string(model.heightChangeUm()) + " um): use the family model");
+  // Fitted against the design's correction alone, the other entries set aside.
+  std::vector<HeightCorrection> entries;
+  for (const HeightCorrection& h : model.meta.height_corrections)
+    if (h.height_change_um != height_change_um) entries.push_back(h);
+  model.meta.height_corrections.clear();
+  const MaskGeometry design = geometry->maskGeometry();
+  MaskGeometry moved = design;
+  moved.height_um += height_change_um;
+  const AngleCorrection base = model.meta.angle_correction;
+  const std::string metrics = model.meta.metrics_yaml;
+  auto restore = [&] {
+    geometry->setMaskGeometry(design);
+    model.meta.angle_correction = base;
+    model.meta.metrics_yaml = metrics;
+    model.meta.height_corrections = entries;
+  };
+  geometry->setMaskGeometry(moved);
+  BiasCalibration c;
+  try {
+    c = calibrateBias(model, data, max_samples, max_degree, /*add_to_model_correction=*/true);
+  } catch (...) {
+    restore();
+    throw;
+  }
+  // The added terms: the fitted correction less the design's.
+  HeightCorrection h;
+  h.height_change_um = height_change_um;
+  h.change = model.meta.angle_correction;
+  for (std::size_t k = 0; k < base.alpha.size(); ++k) {
+    h.change.alpha[k] -= base.alpha[k];
+    h.change.beta[k] -= base.beta[k];
+  }
+  restore();
+  if (c.degree != AngleCorrection::kNone) model.meta.height_corrections.push_back(h);
   return c;
 }
 

@@ -10,6 +10,7 @@
 #include <torch/nn/pimpl.h>
 
 #include <cstdint>
+#include <optional>
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/model/geometry_design.h"
@@ -42,6 +43,11 @@ class SensorGeometryImpl : public torch::nn::Module {
   MaskGeometry maskGeometry() const;
   // Throws std::invalid_argument for another aperture count or a height <= 0.
   void setMaskGeometry(const MaskGeometry& geometry);
+  // The design's mask height, which the model's angle corrections were
+  // fitted at: set by setDesign, and for a loaded model from its sensor
+  // config (a unit model's tensors hold the unit). nullopt: not set.
+  void setDesignHeight(const GeometryDesign& design) { design_height_um_ = design.height_um; }
+  const std::optional<double>& designHeightUm() const { return design_height_um_; }
 
   torch::Tensor height_um;           // [1]
   torch::Tensor offset_um;           // [2] lateral offset of the mask
@@ -56,6 +62,7 @@ class SensorGeometryImpl : public torch::nn::Module {
  private:
   std::int64_t group_count_;
   double air_above_exit_um_ = 0.0;
+  std::optional<double> design_height_um_;
 };
 TORCH_MODULE(SensorGeometry);
 

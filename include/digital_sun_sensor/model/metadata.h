@@ -5,6 +5,7 @@
 #include <array>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "digital_sun_sensor/eval/uncertainty.h"
 #include "digital_sun_sensor/model/angle_correction.h"
@@ -25,6 +26,9 @@ struct ModelMetadata {
   InputSpec input;
   double angle_scale_rad = 0.0;      // network angle output 1.0 = this many radians
   AngleCorrection angle_correction;  // fitted after training (none until then)
+  // Geometric head: the correction's change with the mask height, one entry
+  // per height fitted (dss calibrate-height; none: the correction stays).
+  std::vector<HeightCorrection> height_corrections;
   // Estimates averaged over these mirror images (set after training, by dss
   // calibrate-sigma; the sensor must have the symmetry).
   InferenceSymmetry inference_symmetry = InferenceSymmetry::kNone;

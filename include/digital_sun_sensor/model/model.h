@@ -52,8 +52,13 @@ struct Model {
   // The same for samples already reduced to their sites (training data), in
   // passes of 64 inputs; no autograd, and the caller chooses train or eval mode.
   std::vector<Prediction> predictSamples(const std::vector<const SparseSample*>& samples) const;
-  // Network outputs to angles (the metadata's angle correction subtracted), variances and classes.
+  // Network outputs to angles (the angle correction subtracted), variances and classes.
   std::vector<Prediction> decode(const SscnnOutput& out, const sparse::SiteSet& sites) const;
+  // The metadata's angle correction for the geometry the geometric head
+  // holds (a unit's mask height moves it: ModelMetadata::height_corrections).
+  UnitAngleCorrection angleCorrection() const;
+  // The geometric head's mask height less the design's [um] (0 without one).
+  double heightChangeUm() const;
   // Multiplies the predicted standard deviations by these factors (through
   // the variance head's bias; train/sigma_calibration fits them).
   void scaleSigma(double alpha_factor, double beta_factor);

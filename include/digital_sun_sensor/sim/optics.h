@@ -49,7 +49,10 @@ struct OpticalPath {
   double step_um = 1.0;
   int grid_size = 512;
 
-  static OpticalPath from(const SensorConfig& config);
+  // The config's path; with `height_change_um`, a built unit's whose mask
+  // sits that much higher (an air gap above the glass) or lower (a thinner
+  // glass under it): diffraction follows the unit's own path.
+  static OpticalPath from(const SensorConfig& config, double height_change_um = 0.0);
   double heightUm() const { return air_gap_um + glass_um; }
 };
 

@@ -37,4 +37,15 @@ struct BiasCalibration {
 BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree,
                               bool add_to_model_correction = false);
 
+// Geometric head: fits how the model's angle correction changes with the
+// mask height (ModelMetadata::height_corrections) on images of the design
+// with its mask moved by `height_change_um` (a sensor config with that
+// height), the model's geometry moved alike while it fits what the
+// correction leaves (degree at most `max_degree`, cross-validated); replaces
+// an entry of the same height change, and adds none where no degree helps. The model
+// must hold its design's geometry (a family model). Throws
+// std::invalid_argument naming what is wrong.
+BiasCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data, double height_change_um,
+                                          std::size_t max_samples, int max_degree);
+
 }  // namespace dss
