@@ -18,7 +18,7 @@
 # Data in $DATA_DIR (default .ws/units_data/$FAMILY); every file that exists is
 # reused, so a cut run continues where it stopped. Knobs (environment): UNITS,
 # SCALES, NS, DRIFT_UNITS, EPOCHS (family model; 0: as created), JOBS (units in parallel,
-# default 2).
+# default 2), HEIGHT_CHANGES_UM (heights the family's correction is fitted at).
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
 FAMILY="${FAMILY:-A}"
@@ -31,17 +31,22 @@ FAMILY="${FAMILY:-A}"
 # (FAMILY_SIGMA: options of the family model's calibrate-sigma). In flight,
 # wide_ma's references are gated at 5 deg (MAX_DISAGREEMENT_DEG): the drift
 # moves its estimates near 60 deg by 1-2 deg, and at the default 1 deg only 16-20
-# of 200 references paired (no refit).
+# of 200 references paired (no refit). wide_ma's family model also learns how
+# its correction changes with the mask height (HEIGHT_CHANGES_UM, dss
+# calibrate-height): on a window, an air gap or a thinner window diffracts otherwise.
 FAMILY_SIGMA=()
 MAX_DISAGREEMENT_DEG=1
+HEIGHT_CHANGES=""
 case "$FAMILY" in
   A) SEEDS=(9101 9102 9103 9501) ;;
   thesis_ma) SEEDS=(9601 9602 9603 9611) ;;
   thesis_sa) SEEDS=(9701 9702 9703 9711) EPOCHS="${EPOCHS:-0}" ;;
   wide_ma)
-    SEEDS=(9801 9802 9803 9811) EPOCHS="${EPOCHS:-0}" FAMILY_SIGMA=(--correction-degree 16) MAX_DISAGREEMENT_DEG=5 ;;
+    SEEDS=(9801 9802 9803 9811) EPOCHS="${EPOCHS:-0}" FAMILY_SIGMA=(--correction-degree 16) MAX_DISAGREEMENT_DEG=5
+    HEIGHT_CHANGES="20 -20 10 -10" ;;
   *) echo "unit_tables.sh: FAMILY must be A, thesis_ma, thesis_sa or wide_ma (got '$FAMILY')" >&2; exit 2 ;;
 esac
+HEIGHT_CHANGES_UM="${HEIGHT_CHANGES_UM-$HEIGHT_CHANGES}"
 DATA="${DATA_DIR:-$WS/units_data/$FAMILY}"
 first=${SEEDS[3]}
 UNITS="${UNITS:-$first $((first + 1)) $((first + 2)) $((first + 3)) $((first + 4))}"
@@ -80,8 +85,33 @@ family() {
       >$F.train.log 2>&1
   fi
   # The spot-mismatch level of the design (what model_mismatch is judged against).
-  [ -f $F.family.dssmodel ] || quiet "$DSS" calibrate-sigma --model $F.dssmodel --data $F.sigma.bag "${FAMILY_SIGMA[@]}" \
-    --out $F.family.dssmodel
+  [ -f $F.design.dssmodel ] || [ -f $F.family.dssmodel ] || quiet "$DSS" calibrate-sigma --model $F.dssmodel \
+    --data $F.sigma.bag "${FAMILY_SIGMA[@]}" --out $F.design.dssmodel
+  # The correction's change with the mask height (a glass window: an air gap
+  # or a thinner window diffracts otherwise), from the design with its mask
+  # moved by each of HEIGHT_CHANGES_UM (2000 images each; each fitted against
+  # the design's correction alone, so their order does not matter).
+  if [ ! -f $F.family.dssmodel ]; then
+    local h k=0
+    cp $F.design.dssmodel $F.family.dssmodel.tmp
+    for h in $HEIGHT_CHANGES_UM; do
+      k=$((k + 1))
+      [ -f $F.height$h.bag ] || quiet "$DSS" generate --sensor $F.yaml $(/usr/bin/python3 - $F.yaml "$h" <<'PY'
+import sys, yaml
+c, h = yaml.safe_load(open(sys.argv[1])), float(sys.argv[2])
+height = c["mask"]["height_mm"] + h / 1000
+sets = ["mask.height_mm=%.6f" % height]
+glass = c.get("cover_glass", {})
+if glass.get("enabled") and glass["thickness_mm"] > height:  # a lower mask rests on a thinner window
+    sets.append("cover_glass.thickness_mm=%.6f" % height)
+print(" ".join("--set " + s for s in sets))
+PY
+) --count 2000 --seed $((SEEDS[0] + 119 + k)) --out $F.height$h.bag  # wide_ma: 9921-9924
+      quiet "$DSS" calibrate-height --model $F.family.dssmodel.tmp --data $F.height$h.bag --height-change-um "$h" \
+        --out $F.family.dssmodel.tmp
+    done
+    mv $F.family.dssmodel.tmp $F.family.dssmodel
+  fi
   [ -f $F.calib.yaml ] || quiet "$DSS" calibrate --data $F.train.bag --max-images 1000 --out $F.calib.yaml
   # The family model as shipped for units nobody calibrated: sigma holds the
   # error the design's geometry makes on a unit built to K x typical tolerances.
