@@ -8,6 +8,7 @@
 #include "digital_sun_sensor/baseline/calibration_fit.h"
 #include "digital_sun_sensor/baseline/centroid_estimator.h"
 #include "digital_sun_sensor/baseline/gaussian_fit.h"
+#include "digital_sun_sensor/baseline/geometry_fit.h"
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/spike_filter.h"
 #include "digital_sun_sensor/common/units.h"
@@ -196,6 +197,50 @@ TEST(CalibrationFit, RecoversAsBuiltErrors) {
   EXPECT_GT(tilt_true_deg, 0.1);
   EXPECT_LT(tilt_error_deg, 0.1);
   EXPECT_LT(report.angle_rms_deg, 0.002);
+}
+
+TEST(GeometryFit, EachApertureHeldByItsOwnPrior) {
+  // Spots of the thesis_ma lattice with one aperture 2 um off its design
+  // place, with a little noise. Under the weak gauge prior the fit follows
+  // that aperture; held by a strong prior of its own (a place known from an
+  // earlier calibration) it stays, and its variance says how well it is known.
+  const SensorConfig config = shipped("thesis_ma");
+  const MaskGeometry design = MaskGeometry::nominalOf(config);
+  MaskGeometry truth = design;
+  truth.apertures_um[4] += Eigen::Vector2d(2.0, -2.0);
+  Rng rng(23);
+  std::vector<GeometryObservation> obs;
+  for (int i = 0; i < 60; ++i) {
+    const Eigen::Vector3d sun = sunVectorFromAngles(degToRad(rng.uniform(-4, 4)), degToRad(rng.uniform(-4, 4)));
+    for (int k = 0; k < design.numApertures(); ++k) {
+      const auto px = truth.spotPx(k, sun);
+      if (!px || !truth.insideDetector(*px, 10.0)) continue;
+      GeometryObservation o;
+      o.sample = i;
+      o.sun = sun;
+      o.apertures = {k};
+      o.measured_px = *px + Eigen::Vector2d(0.002 * rng.normal(), 0.002 * rng.normal());
+      obs.push_back(o);
+    }
+  }
+  const double gauge = 1e-6;  // a 0.002 px noise against a 2 px prior
+  std::vector<double> held(static_cast<std::size_t>(design.numApertures()), gauge);
+  held[4] = 1e6;
+  const auto fitted = [&](const GeometryFit& fit) {
+    Eigen::VectorXd p = fit.start();
+    fit.run(p, obs, 100);
+    return std::pair{fit.apply(p), fit.apertureVariances(p, obs)};
+  };
+  const auto [free_fit, free_variance] = fitted(GeometryFit(design, gauge));
+  const auto [held_fit, held_variance] = fitted(GeometryFit(design, 0.0, held));
+  const auto moved = [&](const MaskGeometry& g) { return (g.apertures_um[4] - design.apertures_um[4]).norm(); };
+  std::printf("aperture 4 moved %.4f um (weak prior), %.6f um (held); variance %.3g / %.3g px^2\n", moved(free_fit),
+              moved(held_fit), free_variance[4], held_variance[4]);
+  EXPECT_GT(moved(free_fit), 2.0);  // of 2.83 (the gauge prior shares some with the common terms)
+  EXPECT_LT(moved(held_fit), 0.01);
+  EXPECT_LT(held_variance[4], 0.01 * free_variance[4]);
+  for (std::size_t k = 0; k < free_variance.size(); ++k) EXPECT_LT(free_variance[k], 1e-4) << "aperture " << k;
+  EXPECT_THROW(GeometryFit(design, gauge, {1.0, 2.0}), std::invalid_argument);
 }
 
 TEST(CalibrationFile, RoundTripAndClearErrors) {

@@ -345,6 +345,48 @@ TEST(GeometricHead, OverlappingSpotsReadAsOneGroup) {
   EXPECT_EQ(solution.spots_read[0].item<double>(), 2.0);
 }
 
+TEST(GeometricHead, AnUncertainApertureCountsForWhatIsKnownOfIt) {
+  // One aperture of the unit 1.5 um from where the geometry has it: solved
+  // with every position exact, its spot pulls the angles and the residual
+  // up; with its position variance set (as a unit calibration that did not
+  // pin it would), the others decide and the residual falls to theirs.
+  Fixture f = makeFixture(6, 61);
+  const double alpha = degToRad(1.5), beta = degToRad(-2.0);
+  std::vector<int> whole;
+  for (int k = 0; k < f.unit.numApertures(); ++k) {
+    const auto px = f.unit.spotPx(k, sunVectorFromAngles(alpha, beta));
+    if (px && f.unit.insideDetector(*px, 10.0)) whole.push_back(k);
+  }
+  ASSERT_GE(whole.size(), 4u) << "the draw should show four whole spots";
+  const int moved = whole.front();
+  MaskGeometry built = f.unit;
+  built.apertures_um[static_cast<std::size_t>(moved)] += Eigen::Vector2d(1.5, -1.0);
+  Sites sites;
+  for (int k : whole)
+    addSpot(sites, *built.spotPx(k, sunVectorFromAngles(alpha, beta)) * built.pitch_um, 1.0, f.config, 0);
+  const auto solve = [&] {
+    const auto s = solveGeometry(*f.geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight),
+                                 torch::tensor(sites.index), 1,
+                                 torch::tensor({alpha, beta}, torch::kFloat64).view({1, 2}), optionsFor(f.config));
+    return std::pair{(s.angles_rad - torch::tensor({alpha, beta}, torch::kFloat64)).abs().max().item<double>(),
+                     s.residual_per_dof[0].item<double>()};
+  };
+  const auto [exact_error, exact_residual] = solve();
+  std::vector<double> variance_um2(6, 0.0);
+  variance_um2[static_cast<std::size_t>(moved)] = 100.0;
+  f.geometry->setPositionVariance(variance_um2, 1e-4);
+  EXPECT_EQ(f.geometry->groupPositionVariance().size(), 6u);
+  EXPECT_DOUBLE_EQ(f.geometry->groupPositionVariance()[static_cast<std::size_t>(moved)], 1e6);
+  const auto [weighted_error, weighted_residual] = solve();
+  EXPECT_GT(exact_error, 1e-6);
+  EXPECT_LT(weighted_error, 0.01 * exact_error);
+  EXPECT_LT(weighted_residual, 0.01 * exact_residual);
+  EXPECT_THROW(f.geometry->setPositionVariance({1.0, 2.0}, 1e-4), std::invalid_argument);
+  EXPECT_THROW(f.geometry->setPositionVariance(variance_um2, 0.0), std::invalid_argument);
+  f.geometry->setPositionVariance({}, 0.0);
+  EXPECT_TRUE(f.geometry->groupPositionVariance().empty());
+}
+
 TEST(GeometricHead, GradientsThroughTheSolveMatchFiniteDifferences) {
   const Fixture f = makeFixture(4, 77);
   Sites sites;

@@ -144,6 +144,33 @@ TEST(UnitCalibration, RecoversABuiltUnitsGeometryFromItsImages) {
   for (std::size_t k = 0; k < 2; ++k)
     EXPECT_NEAR(loaded.meta.geometry_sigma_rad[k], model.meta.geometry_sigma_rad[k],
                 1e-6 * model.meta.geometry_sigma_rad[k]);
+  // Each aperture's fitted position variance, which weighs its spot in the solve.
+  ASSERT_EQ(model.meta.aperture_variance_um2.size(), 5u);
+  EXPECT_GT(model.meta.spot_noise_um2, 0.0);
+  EXPECT_EQ(loaded.meta.aperture_variance_um2, model.meta.aperture_variance_um2);
+  EXPECT_EQ(loaded.net->geometry()->groupPositionVariance(), model.net->geometry()->groupPositionVariance());
+  // An aperture whose spot the lab images show whole is pinned; one whose
+  // spot they never show is marked unknown (the solve then hardly counts it).
+  const MaskGeometry design_mask = MaskGeometry::nominalOf(design);
+  int pinned = 0;
+  for (int k = 0; k < 5; ++k) {
+    int clearly_whole = 0, maybe_seen = 0;
+    for (const auto& sample : lab.samples()) {
+      const auto px = design_mask.spotPx(k, sunVectorFromAngles(sample.alpha_rad, sample.beta_rad));
+      clearly_whole += px && design_mask.insideDetector(*px, 15.0);
+      maybe_seen += px && design_mask.insideDetector(*px, -15.0);
+    }
+    const double v = model.meta.aperture_variance_um2[static_cast<std::size_t>(k)];
+    std::printf("aperture %d: whole in %d of 25 lab images, position variance %.3g um2\n", k, clearly_whole, v);
+    if (clearly_whole >= 3) {
+      EXPECT_LT(v, 0.01) << "aperture " << k;
+      ++pinned;
+    }
+    if (maybe_seen == 0) {
+      EXPECT_GT(v, 1.0) << "aperture " << k;
+    }
+  }
+  EXPECT_GE(pinned, 3);
   EXPECT_NE(loaded.meta.unit_yaml.find("25 noise-free images"), std::string::npos) << loaded.meta.unit_yaml;
   const SensorConfig other = drawnDesign(42);
   EXPECT_THROW(loadModel(path, &other), ModelError);

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 namespace dss {
 namespace {
@@ -49,8 +51,16 @@ bool apertureTriangle(const MaskGeometry& g) {
 
 }  // namespace
 
-GeometryFit::GeometryFit(const MaskGeometry& base, double prior_weight) : base_(base), prior_weight_(prior_weight) {
+GeometryFit::GeometryFit(const MaskGeometry& base, double prior_weight,
+                         const std::vector<double>& aperture_prior_weights)
+    : base_(base), prior_weights_(static_cast<std::size_t>(base.numApertures()), prior_weight) {
   const int n_ap = base.numApertures();
+  if (!aperture_prior_weights.empty()) {
+    if (aperture_prior_weights.size() != prior_weights_.size())
+      throw std::invalid_argument("geometry fit: " + std::to_string(aperture_prior_weights.size()) +
+                                  " aperture prior weights for " + std::to_string(n_ap) + " apertures");
+    prior_weights_ = aperture_prior_weights;
+  }
   free_.assign(static_cast<std::size_t>(kNumGlobals + 2 * n_ap), false);
   free_[kHeight] = free_[kOffsetX] = free_[kOffsetY] = true;
   if (n_ap >= 2) {
@@ -103,7 +113,9 @@ bool GeometryFit::predict(const MaskGeometry& g, const GeometryObservation& o, E
 
 double GeometryFit::cost(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const {
   const MaskGeometry g = apply(p);
-  double sum = prior_weight_ * p.tail(p.size() - kNumGlobals).squaredNorm();
+  double sum = 0.0;
+  for (std::size_t k = 0; k < prior_weights_.size(); ++k)
+    sum += prior_weights_[k] * p.segment<2>(kNumGlobals + 2 * static_cast<Eigen::Index>(k)).squaredNorm();
   Eigen::Vector2d q;
   for (const auto& o : obs) sum += predict(g, o, q) ? o.weight * (o.measured_px - q).squaredNorm() : 1e6;
   return sum;
@@ -150,8 +162,9 @@ void GeometryFit::normalEquations(const Eigen::VectorXd& p, const std::vector<Ge
     }
   }
   for (Eigen::Index k = kNumGlobals; k < n; ++k) {
-    a(k, k) += prior_weight_;
-    b[k] -= prior_weight_ * p[k];
+    const double prior = prior_weights_[static_cast<std::size_t>((k - kNumGlobals) / 2)];
+    a(k, k) += prior;
+    b[k] -= prior * p[k];
   }
   for (Eigen::Index k = 0; k < n; ++k)
     if (!free_[static_cast<std::size_t>(k)]) a(k, k) = 1.0, b[k] = 0.0;
@@ -190,18 +203,21 @@ int GeometryFit::run(Eigen::VectorXd& p, const std::vector<GeometryObservation>&
   return it + 1;
 }
 
-Eigen::MatrixXd GeometryFit::covariance(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const {
-  Eigen::MatrixXd a;
-  Eigen::VectorXd b;
-  normalEquations(p, obs, a, b);
+double GeometryFit::residualVariance(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const {
   const MaskGeometry g = apply(p);
   double chi2 = 0.0;
   Eigen::Vector2d q;
   for (const auto& o : obs)
     if (predict(g, o, q)) chi2 += o.weight * (o.measured_px - q).squaredNorm();
   const auto free = static_cast<double>(std::count(free_.begin(), free_.end(), true));
-  const double dof = std::max(1.0, 2.0 * static_cast<double>(obs.size()) - free);
-  Eigen::MatrixXd out = a.ldlt().solve(Eigen::MatrixXd::Identity(a.rows(), a.cols())) * (chi2 / dof);
+  return chi2 / std::max(1.0, 2.0 * static_cast<double>(obs.size()) - free);
+}
+
+Eigen::MatrixXd GeometryFit::covariance(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const {
+  Eigen::MatrixXd a;
+  Eigen::VectorXd b;
+  normalEquations(p, obs, a, b);
+  Eigen::MatrixXd out = a.ldlt().solve(Eigen::MatrixXd::Identity(a.rows(), a.cols())) * residualVariance(p, obs);
   for (Eigen::Index k = 0; k < out.rows(); ++k)
     if (!free_[static_cast<std::size_t>(k)]) out.row(k).setZero(), out.col(k).setZero();
   return out;
@@ -210,6 +226,21 @@ Eigen::MatrixXd GeometryFit::covariance(const Eigen::VectorXd& p, const std::vec
 std::array<double, 6> GeometryFit::standardErrors(const Eigen::MatrixXd& c) {
   std::array<double, 6> out{};
   for (int k = 0; k < kNumGlobals; ++k) out[static_cast<std::size_t>(k)] = std::sqrt(std::max(0.0, c(k, k)));
+  return out;
+}
+
+std::vector<double> GeometryFit::apertureVariances(const Eigen::VectorXd& p,
+                                                   const std::vector<GeometryObservation>& obs) const {
+  Eigen::MatrixXd a;
+  Eigen::VectorXd b;
+  normalEquations(p, obs, a, b);
+  const double variance = residualVariance(p, obs);
+  std::vector<double> out(base_.apertures_um.size(), 0.0);
+  for (std::size_t k = 0; k < out.size(); ++k) {
+    const Eigen::Index at = kNumGlobals + 2 * static_cast<Eigen::Index>(k);
+    if (free_[static_cast<std::size_t>(at)])
+      out[k] = 0.5 * Eigen::Matrix2d(a.block<2, 2>(at, at)).inverse().trace() * variance;
+  }
   return out;
 }
 

@@ -145,7 +145,10 @@ int runCalibrateUnit(int argc, char** argv) {
             << "], \"rotation_change_deg\": " << radToDeg(a.rotation_rad - b.rotation_rad) << ", \"tilt_change_deg\": ["
             << radToDeg(a.tilt_x_rad - b.tilt_x_rad) << ", " << radToDeg(a.tilt_y_rad - b.tilt_y_rad)
             << "], \"geometry_sigma_deg\": [" << radToDeg(report.geometry_sigma_rad[0]) << ", "
-            << radToDeg(report.geometry_sigma_rad[1]) << "]";
+            << radToDeg(report.geometry_sigma_rad[1]) << "], \"aperture_position_sigma_um\": [";
+  for (std::size_t k = 0; k < report.aperture_sigma_um.size(); ++k)
+    std::cout << (k ? ", " : "") << report.aperture_sigma_um[k];
+  std::cout << "]";
   if (sigma)
     std::cout << ", \"sigma_scale_alpha\": " << sigma->scale_alpha << ", \"sigma_scale_beta\": " << sigma->scale_beta
               << ", \"alpha_within_1sigma_before\": " << sigma->alpha_before.within[0]

@@ -167,6 +167,35 @@ void SensorGeometryImpl::setMaskGeometry(const MaskGeometry& m) {
   }
 }
 
+void SensorGeometryImpl::setPositionVariance(const std::vector<double>& aperture_variance_um2, double spot_noise_um2) {
+  if (aperture_variance_um2.empty()) {
+    group_variance_.clear();
+    return;
+  }
+  if (static_cast<int>(aperture_variance_um2.size()) != apertures())
+    throw std::invalid_argument("sensor geometry: " + std::to_string(aperture_variance_um2.size()) +
+                                " aperture position variances for a model of " + std::to_string(apertures()));
+  if (!(spot_noise_um2 > 0.0) || !std::isfinite(spot_noise_um2))
+    throw std::invalid_argument("sensor geometry: the spot noise must be positive");
+  // A group's spot is its apertures' flux-weighted mean.
+  std::vector<double> variance(static_cast<std::size_t>(groups()), 0.0), flux(variance.size(), 0.0);
+  const auto group = aperture_group.contiguous();
+  const auto aperture_fluxes = aperture_flux.contiguous();
+  for (int k = 0; k < apertures(); ++k) {
+    const double v = aperture_variance_um2[static_cast<std::size_t>(k)];
+    if (!(v >= 0.0) || !std::isfinite(v))
+      throw std::invalid_argument("sensor geometry: aperture " + std::to_string(k) +
+                                  "'s position variance is not >= 0");
+    const auto g = static_cast<std::size_t>(group[k].item<std::int64_t>());
+    const double f = aperture_fluxes[k].item<double>();
+    variance[g] += f * f * v;
+    flux[g] += f;
+  }
+  for (std::size_t g = 0; g < variance.size(); ++g)
+    variance[g] = flux[g] > 0.0 ? variance[g] / (flux[g] * flux[g]) / spot_noise_um2 : 0.0;
+  group_variance_ = std::move(variance);
+}
+
 geometric::Design geometric::designOf(const SensorGeometryImpl& geometry) {
   geometric::Design d;
   d.mask = geometry.maskGeometry();
@@ -200,6 +229,7 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
   plain.rounds = options.association_rounds;
   plain.iterations = options.gauss_newton_iterations;
   plain.search = options.search_reference;
+  plain.group_variance = geometry.groupPositionVariance();
   const auto xy = sites.accessor<double, 2>();
   const auto w = plain_weight.accessor<double, 1>();
   const auto b_of = image.accessor<std::int64_t, 1>();
@@ -254,7 +284,9 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
   // normal matrix held at the solution.
   const SpotReads r = readSpots(read_um, weight.reshape({-1}).to(torch::kFloat64) * inside, spot, batch * groups);
   const auto spread = r.spread.clamp_min(options.pitch_um * options.pitch_um / 6.0).view({batch, groups});
-  const auto solve_w = torch::where(read, r.sum.view({batch, groups}) / spread, torch::zeros_like(spread));
+  auto solve_w = torch::where(read, r.sum.view({batch, groups}) / spread, torch::zeros_like(spread));
+  if (!plain.group_variance.empty())  // as geometric::solveWeights
+    solve_w = solve_w / (1.0 + solve_w * torch::tensor(plain.group_variance, kDouble).view({1, groups}));
   const auto spots = r.centroid.view({batch, groups, 2});
   const auto predicted = geometry.groupSpotsUm(angles);
   const auto residual = (spots - predicted).unsqueeze(3);  // [B, G, 2, 1]

@@ -141,6 +141,7 @@ std::vector<double> solveWeights(const Reading& r, const Options& options) {
   for (std::size_t g = 0; g < r.sum.size(); ++g) {
     if (!(r.sum[g] > 0.0)) continue;
     all[g] = r.sum[g] / std::max(r.spread[g], options.pitch_um * options.pitch_um / 6.0);
+    if (!options.group_variance.empty()) all[g] /= 1.0 + all[g] * options.group_variance[g];
     if (!r.cut[g]) {
       whole[g] = all[g];
       any_whole = true;

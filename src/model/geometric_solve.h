@@ -32,6 +32,10 @@ struct Options {
   int width_px = 1, height_px = 1;
   int rounds = 2, iterations = 5;
   bool search = false;
+  // Per group: the uncertainty of its spot's position from the geometry, in
+  // units of the spot noise per unit weight (SensorGeometryImpl::
+  // groupPositionVariance); empty: none.
+  std::vector<double> group_variance;
 };
 
 struct Site {
@@ -68,8 +72,8 @@ Reading readSpots(const Design& design, const std::vector<Site>& sites, const Ei
                   const Options& options, bool fit_cut = true);
 
 // Weight of each group in the solve: its summed weight over its spread (the
-// centroid's noise variance goes as spread / sum); whole spots only where
-// the image has one.
+// centroid's noise variance goes as spread / sum), w / (1 + w v) with the
+// options' group variance v; whole spots only where the image has one.
 std::vector<double> solveWeights(const Reading& r, const Options& options);
 
 // Spots of every group [um] for the angles (far away where no ray reaches).

@@ -267,6 +267,12 @@ std::string metadataToYaml(const ModelMetadata& m) {
   if (m.arch.geometric_head)
     e << YAML::Key << "geometry_sigma_rad" << YAML::Value << YAML::Flow << YAML::BeginSeq << m.geometry_sigma_rad[0]
       << m.geometry_sigma_rad[1] << YAML::EndSeq;
+  if (!m.aperture_variance_um2.empty()) {
+    e << YAML::Key << "aperture_position" << YAML::Value << YAML::BeginMap;
+    e << YAML::Key << "variance_um2" << YAML::Value << YAML::Flow << m.aperture_variance_um2;
+    e << YAML::Key << "spot_noise_um2" << YAML::Value << m.spot_noise_um2;
+    e << YAML::EndMap;
+  }
   e << YAML::Key << "sensor_name" << YAML::Value << m.sensor_name;
   if (m.unit_yaml != "{}") e << YAML::Key << "unit" << YAML::Value << mapFromText(m.unit_yaml, "unit calibration");
   e << YAML::Key << "training" << YAML::Value << mapFromText(m.training_yaml, "training summary");
@@ -442,6 +448,18 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
       }
       if (!(m.geometry_sigma_rad[k] >= 0.0) || !std::isfinite(m.geometry_sigma_rad[k])) throw bad();
     }
+  }
+  if (const YAML::Node position = root["aperture_position"]) {  // absent: positions exact (the design)
+    const std::string at = "aperture_position.";
+    if (!position.IsMap() || !m.arch.geometric_head)
+      throw ModelError(origin + ": metadata key 'aperture_position' must be a map, in a model with a geometric head");
+    m.aperture_variance_um2 = get<std::vector<double>>(position, "variance_um2", origin, at);
+    m.spot_noise_um2 = get<double>(position, "spot_noise_um2", origin, at);
+    bool finite = !m.aperture_variance_um2.empty();
+    for (double v : m.aperture_variance_um2) finite = finite && v >= 0.0 && std::isfinite(v);
+    if (!finite || !(m.spot_noise_um2 > 0.0) || !std::isfinite(m.spot_noise_um2))
+      throw ModelError(origin + ": metadata key 'aperture_position' needs finite non-negative variances and a " +
+                       "positive spot_noise_um2");
   }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
   if (const YAML::Node unit = root["unit"]) {  // absent: the nominal design

@@ -93,6 +93,11 @@ Model deserializeModel(const std::string& bytes, const std::string& origin, cons
     } catch (const std::exception& e) {
       throw ModelError(origin + ": no geometric design from the embedded sensor config: " + e.what());
     }
+    try {
+      m.net->geometry()->setPositionVariance(m.meta.aperture_variance_um2, m.meta.spot_noise_um2);
+    } catch (const std::invalid_argument& e) {
+      throw ModelError(origin + ": metadata key 'aperture_position': " + e.what());
+    }
   }
   m.net->eval();
   return m;

@@ -308,6 +308,7 @@ std::string UnitCalibrationReport::toYaml() const {
   out << YAML::Key << "angle_rms_deg_after" << YAML::Value << angle_rms_deg_after;
   out << YAML::Key << "geometry_sigma_deg" << YAML::Value << YAML::Flow << YAML::BeginSeq
       << radToDeg(geometry_sigma_rad[0]) << radToDeg(geometry_sigma_rad[1]) << YAML::EndSeq;
+  out << YAML::Key << "aperture_position_sigma_um" << YAML::Value << YAML::Flow << aperture_sigma_um;
   // What the fit changed, in the geometry's own terms.
   double shift2 = 0.0;
   for (std::size_t k = 0; k < after.apertures_um.size(); ++k)
@@ -351,6 +352,18 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   const double weight_unit = weights[weights.size() / 2];
   for (auto& o : obs) o.weight /= weight_unit;
   const double prior2 = options.aperture_prior_um * options.aperture_prior_um;
+  // Per aperture, the prior's weight for a gauge prior of `gauge`. A unit
+  // calibrated before (recalibrated in flight) keeps its apertures' places
+  // in the mask, which do not drift: each is held by its earlier variance
+  // (over the spot noise at the median weight), which the new images refine.
+  const auto aperturePriors = [&](double gauge) {
+    std::vector<double> weights(static_cast<std::size_t>(design.mask.numApertures()), gauge);
+    const std::vector<double>& earlier = model.meta.aperture_variance_um2;
+    if (earlier.size() == weights.size())
+      for (std::size_t k = 0; k < weights.size(); ++k)
+        if (earlier[k] > 0.0) weights[k] = std::max(gauge, model.meta.spot_noise_um2 / weight_unit / earlier[k]);
+    return weights;
+  };
 
   GeometryFit first(design.mask, 0.0);
   Eigen::VectorXd p = first.start();
@@ -360,7 +373,7 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   // geometry, outliers (debris, ghosts on a spot, wrong references) dropped,
   // and refitted with the prior scaled by the fitted residuals.
   const double start_sigma = robustSigma(weightedNorms(first, p, obs));
-  const GeometryFit coarse(design.mask, start_sigma * start_sigma / prior2);
+  const GeometryFit coarse(design.mask, 0.0, aperturePriors(start_sigma * start_sigma / prior2));
   report.iterations += coarse.run(p, obs, options.max_iterations);
   geometric::Design fitted = design;
   fitted.mask = coarse.apply(p);
@@ -374,7 +387,7 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
     if (norms[k] <= options.outlier_sigmas * sigma) inliers.push_back(obs[k]);
   report.outliers = static_cast<int>(obs.size() - inliers.size());
   if (inliers.size() < 3) throw std::invalid_argument(what + ": too few consistent spots in the images");
-  const GeometryFit fine(design.mask, sigma * sigma / prior2);
+  const GeometryFit fine(design.mask, 0.0, aperturePriors(sigma * sigma / prior2));
   report.iterations += fine.run(p, inliers, options.max_iterations);
   report.free_parameters = fine.freeParameters();
   report.spots = static_cast<int>(inliers.size());
@@ -388,6 +401,12 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   report.geometry_sigma_rad = geometrySigma(fine, p, covariance, design, images, targets, solve);
   const MaskGeometry fitted_mask = fine.apply(p);
   geometry.setMaskGeometry(fitted_mask);
+  // Each aperture's position variance (its prior included), for the solve's weights.
+  const std::vector<double> variance_um2 = fine.apertureVariances(p, inliers);
+  model.meta.aperture_variance_um2 = variance_um2;
+  model.meta.spot_noise_um2 = fine.residualVariance(p, inliers) * weight_unit;
+  geometry.setPositionVariance(model.meta.aperture_variance_um2, model.meta.spot_noise_um2);
+  for (double v : variance_um2) report.aperture_sigma_um.push_back(std::sqrt(v));
   if (model.meta.arch.geometric_prior_size > 0) {
     const GeometricPrior prior =
         geometricPrior(parseSensorConfig(model.meta.sensor_yaml, what + " (the model's sensor)"), fitted_mask,

@@ -37,8 +37,10 @@ class GeometryFit {
   // Parameters: the six globals (height, offset x/y, rotation, tilt x/y;
   // absolute) then per aperture its (dx, dy) from `base`. Those the data
   // cannot determine (see above) stay at `base`'s values; the aperture
-  // offsets weigh `prior_weight` x their square in the cost.
-  GeometryFit(const MaskGeometry& base, double prior_weight);
+  // offsets weigh `prior_weight` x their square in the cost, or aperture k's
+  // `aperture_prior_weights[k]` where given (one per aperture; throws
+  // std::invalid_argument otherwise).
+  GeometryFit(const MaskGeometry& base, double prior_weight, const std::vector<double>& aperture_prior_weights = {});
 
   Eigen::VectorXd start() const;  // `base`
   MaskGeometry apply(const Eigen::VectorXd& p) const;
@@ -50,10 +52,17 @@ class GeometryFit {
   double cost(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
   // Levenberg-Marquardt from p; returns the iterations used.
   int run(Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs, int max_iterations) const;
+  // Weighted squared residual per degree of freedom at p: the noise variance
+  // per axis of a spot of weight 1 [px^2].
+  double residualVariance(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
   // Covariance of the parameters at p (zero rows and columns where not
-  // free): the inverse normal matrix (with the prior) times the weighted
-  // residual variance per degree of freedom.
+  // free): the inverse normal matrix (with the prior) times residualVariance.
   Eigen::MatrixXd covariance(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
+  // Per aperture, the variance of its position with the globals held
+  // (mean of x and y, px^2): how well its own spots (and the prior) pin it,
+  // apart from the offset and rotation that all apertures share; 0 where
+  // the apertures are not free.
+  std::vector<double> apertureVariances(const Eigen::VectorXd& p, const std::vector<GeometryObservation>& obs) const;
   // Standard errors of the six globals from covariance() (0 where not free).
   static std::array<double, 6> standardErrors(const Eigen::MatrixXd& covariance);
   // Residual length per observation [px] (infinity where no ray reaches).
@@ -66,7 +75,7 @@ class GeometryFit {
 
   MaskGeometry base_;
   std::vector<bool> free_;
-  double prior_weight_;
+  std::vector<double> prior_weights_;  // per aperture
 };
 
 // Median absolute value x 1.4826 (0 for none).

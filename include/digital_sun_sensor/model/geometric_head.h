@@ -11,6 +11,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <vector>
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/model/geometry_design.h"
@@ -49,6 +50,15 @@ class SensorGeometryImpl : public torch::nn::Module {
   void setDesignHeight(const GeometryDesign& design) { design_height_um_ = design.height_um; }
   const std::optional<double>& designHeightUm() const { return design_height_um_; }
 
+  // A unit calibration's uncertainty of each aperture's position [um^2]
+  // over the spot noise at unit solve weight [um^2] (ModelMetadata::
+  // aperture_variance_um2, spot_noise_um2), per group (flux-weighted): the
+  // solve weighs a group's spot by 1 / (1 / w + variance). Empty variances:
+  // every position exact. Throws std::invalid_argument for another aperture
+  // count, a negative variance or a noise <= 0.
+  void setPositionVariance(const std::vector<double>& aperture_variance_um2, double spot_noise_um2);
+  const std::vector<double>& groupPositionVariance() const { return group_variance_; }
+
   torch::Tensor height_um;           // [1]
   torch::Tensor offset_um;           // [2] lateral offset of the mask
   torch::Tensor rotation_rad;        // [1] about the boresight
@@ -63,6 +73,7 @@ class SensorGeometryImpl : public torch::nn::Module {
   std::int64_t group_count_;
   double air_above_exit_um_ = 0.0;
   std::optional<double> design_height_um_;
+  std::vector<double> group_variance_;  // per group, in units of the spot noise per unit weight
 };
 TORCH_MODULE(SensorGeometry);
 

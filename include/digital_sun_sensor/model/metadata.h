@@ -47,6 +47,14 @@ struct ModelMetadata {
   // image, so it is not in the network's sigma), added in quadrature to each
   // estimate's; 0 for the design.
   std::array<double, 2> geometry_sigma_rad{};
+  // Geometric head, after a unit calibration: each aperture's fitted
+  // position variance [um^2, mean of x and y] and the spot noise variance per
+  // axis at unit solve weight [um^2], from the same fit. The solve weighs a
+  // spot by 1 / (1 / w + variance / noise): one whose aperture the
+  // calibration images hardly pinned counts for what is known of it
+  // (SensorGeometryImpl::setPositionVariance). Empty: positions exact.
+  std::vector<double> aperture_variance_um2;
+  double spot_noise_um2 = 0.0;
   // YAML map: the unit calibration the geometry holds (dss calibrate-unit:
   // data, images, residuals, fitted parameters); "{}": the nominal design.
   std::string unit_yaml = "{}";

@@ -68,6 +68,10 @@ struct UnitCalibrationReport {
   // Sigma [rad] of alpha and beta from the fitted geometry's uncertainty
   // (set in the model as ModelMetadata::geometry_sigma_rad).
   std::array<double, 2> geometry_sigma_rad{};
+  // Per aperture, the standard deviation of its fitted position [um]
+  // (ModelMetadata::aperture_variance_um2): large where no image showed its
+  // spot whole.
+  std::vector<double> aperture_sigma_um;
 
   std::string toYaml() const;  // a YAML map, stored in the model (ModelMetadata::unit_yaml)
 };
