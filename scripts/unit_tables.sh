@@ -45,7 +45,7 @@ case "$FAMILY" in
   thesis_sa) SEEDS=(9701 9702 9703 9711) EPOCHS="${EPOCHS:-0}" ;;
   wide_ma)
     SEEDS=(9801 9802 9803 9811) EPOCHS="${EPOCHS:-0}" FAMILY_SIGMA=(--correction-degree 16) MAX_DISAGREEMENT_DEG=20
-    HEIGHT_CHANGES="20 -20 10 -10 40 -40" ;;
+    HEIGHT_CHANGES="20 -20 10 -10 40 -40 30 -30" ;;
   *) echo "unit_tables.sh: FAMILY must be A, thesis_ma, thesis_sa or wide_ma (got '$FAMILY')" >&2; exit 2 ;;
 esac
 HEIGHT_CHANGES_UM="${HEIGHT_CHANGES_UM-$HEIGHT_CHANGES}"
@@ -108,7 +108,7 @@ if glass.get("enabled") and glass["thickness_mm"] > height:  # a lower mask rest
     sets.append("cover_glass.thickness_mm=%.6f" % height)
 print(" ".join("--set " + s for s in sets))
 PY
-) --count 2000 --seed $((SEEDS[0] + 119 + k)) --out $F.height$h.bag  # wide_ma: 9921-9926
+) --count 2000 --seed $((SEEDS[0] + 119 + k)) --out $F.height$h.bag  # wide_ma: 9921-9928
       quiet "$DSS" calibrate-height --model $F.family.dssmodel.tmp --data $F.height$h.bag --height-change-um "$h" \
         --out $F.family.dssmodel.tmp
     done
