@@ -212,6 +212,14 @@ TEST(EstimatorFactory, ParsesSpecsAndChecksTheSensor) {
   } catch (const CalibrationError& e) {
     EXPECT_NE(std::string(e.what()).find("wide_ma"), std::string::npos) << e.what();
   }
+  // The whole-pattern estimator takes the sensor config itself.
+  const std::string ca = std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_ca.yaml";
+  const SensorConfig coded = shipped("thesis_ca");
+  EXPECT_EQ(makeEstimator("pattern:" + ca, &coded)->source(), "pattern");
+  EXPECT_THROW(makeEstimator("pattern:" + ca, &sa), std::invalid_argument);
+  // Only an estimator that can use a sub-FOV hint takes one.
+  EXPECT_THROW(makeEstimator("centroid:" + calibrationPath(), &sa)->estimateWithSubFovHints({}, {}),
+               std::invalid_argument);
 }
 
 // The shipped thesis_sa model averages over its 8 mirror images; the option

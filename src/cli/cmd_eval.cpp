@@ -64,7 +64,7 @@ int runEval(int argc, char** argv) {
             "Errors are |estimate - truth| over the images the estimator marked valid.",
             {
                 {"data", "BAG", "dataset bag(s) of /sun_sensor/image + /sun_sensor/truth", "", true, true},
-                {"estimator", "KIND:FILE", "sscnn:MODEL or centroid:CALIB", "", true, false},
+                {"estimator", "KIND:FILE", "sscnn:MODEL, centroid:CALIB or pattern:SENSOR_CONFIG", "", true, false},
                 {"symmetry", "S",
                  "SSCNN: 'model' (average over the mirror images its file names) or 'none' (the image alone; "
                  "calibration_node's ~inference_symmetry)",
@@ -78,6 +78,11 @@ int runEval(int argc, char** argv) {
                  "with --screen: its hot-pixel repair threshold (0: off; the baseline's own repair is its "
                  "calibration file's extraction.spike_sigmas)",
                  defaultText(kDefaultSpikeSigmas), false, false},
+                {"subfov-hint", "",
+                 "give the estimator each image's true sub-FOV class (as the published protocol gives its network; "
+                 "a coarse sun sensor's quadrant): the pattern estimator, on a mask whose pattern repeats within "
+                 "the field",
+                 "", false, false},
                 {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images (0: skip)", "200", false, false},
                 {"batch", "B", "images per estimator call", "16", false, false},
                 {"max-images", "N", "evaluate at most N images (0: all)", "0", false, false},
@@ -112,11 +117,15 @@ int runEval(int argc, char** argv) {
 
   std::vector<EvalRecord> records;
   std::vector<cv::Mat> batch;
+  std::vector<int> hints;
+  const bool hinted = args.has("subfov-hint");
   double estimator_ms = 0.0;
   auto flush = [&] {
     if (batch.empty()) return;
     const auto t0 = std::chrono::steady_clock::now();
-    const std::vector<SunEstimate> estimates = estimator->estimate(batch);
+    const std::vector<SunEstimate> estimates =
+        hinted ? estimator->estimateWithSubFovHints(batch, hints) : estimator->estimate(batch);
+    hints.clear();
     estimator_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     for (std::size_t k = 0; k < estimates.size(); ++k)
       records[records.size() - batch.size() + k].estimate = estimates[k];
@@ -134,6 +143,7 @@ int runEval(int argc, char** argv) {
     r.subfov_true = item.truth.subfov_class;
     records.push_back(r);
     batch.push_back(item.image);
+    hints.push_back(item.truth.subfov_class);
     if (batch.size() >= batch_size) flush();
     progress.update(item.index + 1);
     return max_images == 0 || item.index + 1 < max_images;

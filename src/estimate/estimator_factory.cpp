@@ -4,6 +4,7 @@
 
 #include "digital_sun_sensor/baseline/calibration.h"
 #include "digital_sun_sensor/baseline/centroid_estimator.h"
+#include "digital_sun_sensor/baseline/pattern_estimator.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
 
 namespace dss {
@@ -31,9 +32,18 @@ std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec, const Senso
                                             const EstimatorOptions& options) {
   const auto colon = spec.find(':');
   const std::string kind = spec.substr(0, colon), path = colon == std::string::npos ? "" : spec.substr(colon + 1);
-  if (path.empty() || (kind != "centroid" && kind != "sscnn"))
-    throw std::invalid_argument("estimator must be sscnn:MODEL or centroid:CALIB, got '" + spec + "'");
+  if (path.empty() || (kind != "centroid" && kind != "sscnn" && kind != "pattern"))
+    throw std::invalid_argument("estimator must be sscnn:MODEL, centroid:CALIB or pattern:SENSOR_CONFIG, got '" + spec +
+                                "'");
   if (kind == "centroid") return makeCentroid(path, expected);
+  if (kind == "pattern") {
+    const SensorConfig config = loadSensorConfig(path);
+    if (expected) {
+      const std::string mismatch = sensorDesignMismatch(config, *expected);
+      if (!mismatch.empty()) throw std::invalid_argument(path + ": the sensor config describes " + mismatch);
+    }
+    return std::make_unique<PatternEstimator>(config);
+  }
   return std::make_unique<SscnnEstimator>(path, expected, options.mirror_average);
 }
 

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <opencv2/core.hpp>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -39,6 +40,16 @@ class SunEstimator {
   // One estimate per image, in order. Images that cannot be used (wrong size
   // or encoding) give valid = false with the reason in status.
   virtual std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) = 0;
+  // The same with each image's sub-FOV class known from elsewhere (a coarse
+  // sun sensor's quadrant; the published protocol gives it to its network),
+  // for estimators whose sensor cannot tell it from the image alone. The
+  // others throw std::invalid_argument.
+  virtual std::vector<SunEstimate> estimateWithSubFovHints(const std::vector<cv::Mat>& images,
+                                                           const std::vector<int>& subfov_classes) {
+    (void)images;
+    (void)subfov_classes;
+    throw std::invalid_argument("the " + source() + " estimator takes no sub-FOV hint");
+  }
 };
 
 }  // namespace dss

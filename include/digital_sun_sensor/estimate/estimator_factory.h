@@ -23,7 +23,8 @@ struct EstimatorOptions {
 // "none". Throws std::invalid_argument naming the value otherwise.
 bool mirrorAverageFromName(const std::string& name);
 
-// "sscnn:MODEL" or "centroid:CALIB". Throws std::invalid_argument for a
+// "sscnn:MODEL", "centroid:CALIB" or "pattern:SENSOR_CONFIG" (the whole-pattern
+// solve of a mask whose spots merge). Throws std::invalid_argument for a
 // malformed spec, ModelError / CalibrationError for a bad file; with
 // `expected`, also when the file was made for another sensor design.
 std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec, const SensorConfig* expected = nullptr,

@@ -1,0 +1,45 @@
+// The conventional estimator for masks whose spots merge (thesis_ca), where
+// the centroid chain finds no spot to match: the whole-pattern solve
+// (baseline/pattern_solve.h) on the sensor's design, no training and no
+// calibration. An image that fits two places in the field about equally
+// (a pattern that repeats within the field) is answered
+// ambiguous_aperture, with the better fit's angles.
+#pragma once
+
+#include <memory>
+#include <optional>
+
+#include "digital_sun_sensor/baseline/pattern_solve.h"
+#include "digital_sun_sensor/common/sun_estimate.h"
+#include "digital_sun_sensor/model/input_spec.h"
+
+namespace dss {
+
+class PatternEstimator : public SunEstimator {
+ public:
+  // An alternative fit inside the field (plus this margin) whose residual
+  // is within this ratio of the best makes the image ambiguous.
+  static constexpr double kAmbiguousCostRatio = 1.01;
+  static constexpr double kFieldMarginDeg = 0.25;
+
+  explicit PatternEstimator(const SensorConfig& config);
+
+  std::string source() const override { return "pattern"; }
+  const SensorConfig& sensor() const override { return config_; }
+  std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
+  // Quadrant classes (quadrant sub-FOV sensors only): each image's answer is
+  // sought in its quadrant (plus the field margin across its axes).
+  std::vector<SunEstimate> estimateWithSubFovHints(const std::vector<cv::Mat>& images,
+                                                   const std::vector<int>& subfov_classes) override;
+
+  // Within `window` (default: the field of view plus the margin).
+  SunEstimate estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window = {}) const;
+
+ private:
+  SensorConfig config_;
+  InputSpec input_;
+  PatternSolver solver_;
+  AngleWindow field_;
+};
+
+}  // namespace dss

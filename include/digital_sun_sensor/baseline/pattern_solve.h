@@ -1,0 +1,95 @@
+// Sun angles from the whole light pattern of a mask whose spots merge
+// (baseline/pattern_template.h): the image is modelled as the template
+// shifted by the sun's lateral drift at the mask's mid-plane, scaled by an
+// unknown gain and passed through the sensor's threshold,
+//   value(x) = max(floor, gain * P(x - d(alpha, beta)) - offset),
+// a pixel below the threshold reading as censored. A coarse-to-fine search
+// over the field's shifts (block-averaged template, normalised correlation)
+// finds where the pattern lies; Gauss-Newton on every lit pixel and its dark
+// neighbours then fits (alpha, beta, gain). Torch-free.
+#pragma once
+
+#include <Eigen/Core>
+#include <limits>
+#include <memory>
+#include <opencv2/core.hpp>
+#include <optional>
+#include <vector>
+
+#include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/baseline/pattern_template.h"
+#include "digital_sun_sensor/sim/sensor_config.h"
+
+namespace dss {
+
+struct PatternSolveOptions {
+  int coarse_factor = 8;  // block size of the global search [px]
+  int middle_factor = 2;  // block size of the local search around each candidate [px]
+  int candidates = 6;     // global search peaks refined
+  int iterations = 10;    // Gauss-Newton iterations at full resolution
+  int dark_band_px = 2;   // dark pixels this close to a lit one enter the fit (censored)
+};
+
+struct PatternSolution {
+  Eigen::Vector2d angles_rad = Eigen::Vector2d::Zero();
+  // (J^T J)^-1 times the residual variance per pixel [rad^2].
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Zero();
+  double gain = 0.0;
+  double residual_rms_dn = 0.0;  // of the pixels in the fit
+  int pixels = 0;                // in the final fit
+  int iterations = 0;
+  // The best fit elsewhere in the field (more than kDistinctDeg away) and
+  // its residual RMS over this one's: near 1, the image fits both (a mask
+  // whose pattern repeats within the field). Infinity: no other fit.
+  Eigen::Vector2d alternative_rad = Eigen::Vector2d::Zero();
+  double alternative_cost_ratio = std::numeric_limits<double>::infinity();
+  static constexpr double kDistinctDeg = 0.1;
+};
+
+// Where the answer must lie (e.g. the quadrant a coarse sun sensor gives):
+// fits outside it are not considered.
+struct AngleWindow {
+  Eigen::Vector2d min_rad, max_rad;
+  bool contains(const Eigen::Vector2d& angles_rad) const {
+    return (angles_rad.array() >= min_rad.array()).all() && (angles_rad.array() <= max_rad.array()).all();
+  }
+};
+
+class PatternSolver {
+ public:
+  // Renders the template (seconds for a large mask). Throws
+  // std::invalid_argument where the config has no light pattern to fit.
+  explicit PatternSolver(const SensorConfig& config, PatternSolveOptions options = {});
+  ~PatternSolver();
+
+  // nullopt: no lit pixel, or no shift in the field (in `window`, when
+  // given) explains the light. The image must have the config's size
+  // (CV_8U or CV_16U).
+  std::optional<PatternSolution> solve(const cv::Mat& image, const std::optional<AngleWindow>& window = {}) const;
+
+  // Gauss-Newton from given angles (no search): for tests and for callers
+  // with a coarse estimate of their own.
+  std::optional<PatternSolution> refine(const cv::Mat& image, const Eigen::Vector2d& start_rad) const;
+
+  // The pattern's lateral drift [um] at the given sun angles (the spot of
+  // an aperture at the mask centre, through any cover glass).
+  Eigen::Vector2d shiftUm(const Eigen::Vector2d& angles_rad) const;
+
+  const PatternTemplate& patternTemplate() const { return *template_; }
+
+ private:
+  struct Pixels;
+  struct Level;
+  Pixels pixelsOf(const cv::Mat& image) const;
+  std::optional<PatternSolution> fit(const Pixels& pixels, Eigen::Vector2d angles) const;
+  Eigen::Vector2d anglesOfShift(const Eigen::Vector2d& shift_um) const;
+
+  SensorConfig config_;
+  PatternSolveOptions options_;
+  std::shared_ptr<const PatternTemplate> template_;
+  MaskGeometry drift_;  // one aperture at the mask centre, at the mid-plane height
+  double offset_ = 0.0, floor_ = 0.0, top_ = 0.0;
+  std::vector<Level> levels_;  // block-averaged templates: coarse, middle
+};
+
+}  // namespace dss

@@ -1,0 +1,100 @@
+#include "digital_sun_sensor/baseline/pattern_estimator.h"
+
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+#include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/common/estimate_status.h"
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
+
+namespace dss {
+
+PatternEstimator::PatternEstimator(const SensorConfig& config)
+    : config_(config), input_(inputSpecFor(config)), solver_(config) {
+  const Eigen::Vector2d half(degToRad(config.fov.alpha_max_deg + kFieldMarginDeg),
+                             degToRad(config.fov.beta_max_deg + kFieldMarginDeg));
+  field_ = {-half, half};
+}
+
+std::vector<SunEstimate> PatternEstimator::estimate(const std::vector<cv::Mat>& images) {
+  std::vector<SunEstimate> out;
+  out.reserve(images.size());
+  for (const auto& image : images) out.push_back(estimateOne(image));
+  return out;
+}
+
+std::vector<SunEstimate> PatternEstimator::estimateWithSubFovHints(const std::vector<cv::Mat>& images,
+                                                                   const std::vector<int>& subfov_classes) {
+  if (subfov_classes.size() != images.size())
+    throw std::invalid_argument("pattern estimator: " + std::to_string(subfov_classes.size()) + " sub-FOV hints for " +
+                                std::to_string(images.size()) + " images");
+  if (config_.subfov != SubFovType::kQuadrant)
+    throw std::invalid_argument("pattern estimator: sub-FOV hints are quadrants; sensor '" + config_.name +
+                                "' names its sub-FOV by aperture");
+  const double margin = degToRad(kFieldMarginDeg);
+  std::vector<SunEstimate> out;
+  out.reserve(images.size());
+  for (std::size_t k = 0; k < images.size(); ++k) {
+    const int q = subfov_classes[k];
+    if (q < 0 || q > 3) throw std::invalid_argument("pattern estimator: quadrant hint " + std::to_string(q));
+    AngleWindow window = field_;
+    if (q & 1)
+      window.min_rad.x() = -margin;
+    else
+      window.max_rad.x() = margin;
+    if (q & 2)
+      window.min_rad.y() = -margin;
+    else
+      window.max_rad.y() = margin;
+    out.push_back(estimateOne(images[k], window));
+  }
+  return out;
+}
+
+SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window) const {
+  SunEstimate est;
+  try {
+    input_.checkImage(image);
+  } catch (const std::invalid_argument& ex) {
+    est.status = status::withDetail(status::kBadImage, ex.what());
+    return est;
+  }
+  if (cv::countNonZero(image) == 0) {
+    est.status = status::kNoSun;
+    return est;
+  }
+  const auto solution = solver_.solve(image, window ? *window : field_);
+  if (!solution) {
+    est.status = status::kNoMatch;
+    return est;
+  }
+  est.alpha_rad = solution->angles_rad.x();
+  est.beta_rad = solution->angles_rad.y();
+  const Eigen::Matrix2d& cov = solution->covariance;
+  est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
+  if (config_.subfov == SubFovType::kQuadrant) {
+    est.subfov_class = quadrantClass(est.alpha_rad, est.beta_rad);
+  } else {
+    const MaskGeometry geometry = MaskGeometry::nominalOf(config_);
+    const Eigen::Vector3d sun = sunVectorFromAngles(est.alpha_rad, est.beta_rad);
+    double best = std::numeric_limits<double>::max();
+    for (int i = 0; i < geometry.numApertures(); ++i) {
+      const auto p = geometry.spotPx(i, sun);
+      if (p && p->squaredNorm() < best) best = p->squaredNorm(), est.subfov_class = i;
+    }
+  }
+  if (solution->alternative_cost_ratio < kAmbiguousCostRatio) {
+    est.status = status::withDetail(status::kAmbiguousAperture,
+                                    "the pattern fits equally at alpha " +
+                                        std::to_string(radToDeg(solution->alternative_rad.x())) + ", beta " +
+                                        std::to_string(radToDeg(solution->alternative_rad.y())) + " deg");
+    return est;
+  }
+  est.valid = cov.allFinite();
+  if (!est.valid) est.status = status::kNotFinite;
+  return est;
+}
+
+}  // namespace dss

@@ -1,0 +1,320 @@
+#include "digital_sun_sensor/baseline/pattern_solve.h"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <opencv2/imgproc.hpp>
+#include <stdexcept>
+
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
+
+namespace dss {
+
+// Lit pixels and the dark ones next to them [um from the detector centre,
+// DN], the image's total light and, per search level, its block sums.
+struct PatternSolver::Pixels {
+  struct Pixel {
+    double x, y, value;
+  };
+  std::vector<Pixel> lit, dark;
+  double total = 0.0;
+  std::vector<std::vector<Pixel>> blocks;  // per level
+};
+
+// A block-averaged template above a level (what a lit pixel can lie on),
+// with its integral image for the light it puts in the detector window.
+struct PatternSolver::Level {
+  int factor = 1;
+  int side = 0;
+  double step_um = 1.0, centre = 0.0;
+  cv::Mat values;    // CV_64F side x side
+  cv::Mat integral;  // CV_64F (side + 1)^2
+
+  double at(int u, int v) const { return u < 0 || v < 0 || u >= side || v >= side ? 0.0 : values.at<double>(v, u); }
+  // Sum over template cells [u0, u1) x [v0, v1), clipped to the template.
+  double sum(int u0, int v0, int u1, int v1) const {
+    u0 = std::clamp(u0, 0, side), u1 = std::clamp(u1, 0, side);
+    v0 = std::clamp(v0, 0, side), v1 = std::clamp(v1, 0, side);
+    if (u1 <= u0 || v1 <= v0) return 0.0;
+    return integral.at<double>(v1, u1) - integral.at<double>(v0, u1) - integral.at<double>(v1, u0) +
+           integral.at<double>(v0, u0);
+  }
+};
+
+PatternSolver::PatternSolver(const SensorConfig& config, PatternSolveOptions options)
+    : config_(config), options_(options), template_(std::make_shared<PatternTemplate>(config)) {
+  drift_ = MaskGeometry::nominalOf(config);
+  drift_.apertures_um = {Eigen::Vector2d::Zero()};
+  drift_.aperture_diameters_um = {0.0};
+  drift_.air_above_exit_um = 0.5 * config.mask.thickness_mm * 1000.0;
+  drift_.height_um = config.mask.height_mm * 1000.0 + drift_.air_above_exit_um;
+  top_ = config.maxCode();
+  const double level = config.threshold.enabled ? config.threshold.level_fraction : 0.0;
+  if (config.threshold.enabled && config.threshold.rescale) {
+    offset_ = level / (1.0 - level) * top_;  // value = (code - level top) / (1 - level)
+    floor_ = 0.0;
+  } else {
+    offset_ = -config.noise.black_level_dn;
+    floor_ = config.threshold.enabled ? level * top_ : -std::numeric_limits<double>::infinity();
+  }
+  // Where lit pixels can lie: above 90 % of the threshold's share of the peak.
+  const double above = 0.9 * level;
+  for (int factor : {options_.coarse_factor, options_.middle_factor}) {
+    Level l;
+    l.factor = factor;
+    l.side = template_->sidePx() / factor;
+    l.step_um = factor * template_->pitchUm();
+    l.centre = 0.5 * (template_->sidePx() / static_cast<double>(factor) - 1.0);
+    l.values = cv::Mat::zeros(l.side, l.side, CV_64F);
+    const cv::Mat& p = template_->values();
+    for (int v = 0; v < l.side; ++v)
+      for (int u = 0; u < l.side; ++u) {
+        double s = 0.0;
+        for (int j = 0; j < factor; ++j)
+          for (int i = 0; i < factor; ++i) s += std::max(0.0, p.at<double>(v * factor + j, u * factor + i) - above);
+        l.values.at<double>(v, u) = s / (factor * factor);
+      }
+    cv::integral(l.values, l.integral, CV_64F);
+    levels_.push_back(std::move(l));
+  }
+}
+
+PatternSolver::~PatternSolver() = default;
+
+Eigen::Vector2d PatternSolver::shiftUm(const Eigen::Vector2d& angles_rad) const {
+  const auto spot = drift_.spotPx(0, sunVectorFromAngles(angles_rad.x(), angles_rad.y()));
+  return spot ? Eigen::Vector2d(*spot * drift_.pitch_um) : Eigen::Vector2d(1e12, 1e12);
+}
+
+Eigen::Vector2d PatternSolver::anglesOfShift(const Eigen::Vector2d& shift_um) const {
+  Eigen::Vector2d angles = Eigen::Vector2d::Zero();
+  for (int it = 0; it < 20; ++it) {
+    constexpr double kStep = 1e-6;
+    Eigen::Matrix2d j;
+    for (int axis = 0; axis < 2; ++axis) {
+      Eigen::Vector2d d = Eigen::Vector2d::Zero();
+      d[axis] = kStep;
+      j.col(axis) = (shiftUm(angles + d) - shiftUm(angles - d)) / (2.0 * kStep);
+    }
+    const Eigen::Vector2d step = j.inverse() * (shift_um - shiftUm(angles));
+    if (!step.allFinite()) break;
+    angles += step;
+    if (step.norm() < 1e-13) break;
+  }
+  return angles;
+}
+
+PatternSolver::Pixels PatternSolver::pixelsOf(const cv::Mat& image) const {
+  cv::Mat value;
+  image.convertTo(value, CV_64F);
+  const cv::Mat lit = value > 0.0;
+  cv::Mat near;
+  const int band = 2 * options_.dark_band_px + 1;
+  cv::dilate(lit, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(band, band)));
+  Pixels px;
+  const double pitch = config_.detector.pitch_um;
+  const double cx = 0.5 * (image.cols - 1), cy = 0.5 * (image.rows - 1);
+  for (std::size_t l = 0; l < levels_.size(); ++l) {
+    const int f = levels_[l].factor;
+    const int bw = (image.cols + f - 1) / f, bh = (image.rows + f - 1) / f;
+    std::vector<double> sums(static_cast<std::size_t>(bw * bh), 0.0);
+    for (int r = 0; r < image.rows; ++r)
+      for (int c = 0; c < image.cols; ++c)
+        sums[static_cast<std::size_t>((r / f) * bw + c / f)] += value.at<double>(r, c);
+    std::vector<Pixels::Pixel> blocks;
+    for (int br = 0; br < bh; ++br)
+      for (int bc = 0; bc < bw; ++bc) {
+        const double s = sums[static_cast<std::size_t>(br * bw + bc)];
+        if (s > 0.0) blocks.push_back({((bc + 0.5) * f - 0.5 - cx) * pitch, ((br + 0.5) * f - 0.5 - cy) * pitch, s});
+      }
+    px.blocks.push_back(std::move(blocks));
+  }
+  for (int r = 0; r < image.rows; ++r)
+    for (int c = 0; c < image.cols; ++c) {
+      const double v = value.at<double>(r, c);
+      const Pixels::Pixel p{(c - cx) * pitch, (r - cy) * pitch, v};
+      if (v > 0.0) {
+        px.lit.push_back(p);
+        px.total += v;
+      } else if (near.at<std::uint8_t>(r, c)) {
+        px.dark.push_back(p);
+      }
+    }
+  return px;
+}
+
+namespace {
+
+struct Peak {
+  double score;
+  Eigen::Vector2d shift_um;
+};
+
+}  // namespace
+
+std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
+                                                    const std::optional<AngleWindow>& window) const {
+  const Pixels px = pixelsOf(image);
+  if (px.lit.empty()) return std::nullopt;
+  const double window_px = static_cast<double>(image.cols) * image.rows;
+  const double mean = px.total / window_px;
+  // Normalised correlation of the image's blocks with the level's template
+  // at a shift [um]: the light on the template's bright parts less what the
+  // template's light in the window would draw at the image's mean level.
+  const double half_w = 0.5 * image.cols * config_.detector.pitch_um;
+  const double half_h = 0.5 * image.rows * config_.detector.pitch_um;
+  auto score = [&](std::size_t level, const Eigen::Vector2d& shift) {
+    const Level& l = levels_[level];
+    double s = 0.0;
+    for (const auto& b : px.blocks[level]) {
+      const int u = static_cast<int>(std::lround((b.x - shift.x()) / l.step_um + l.centre));
+      const int v = static_cast<int>(std::lround((b.y - shift.y()) / l.step_um + l.centre));
+      s += b.value * l.at(u, v);
+    }
+    const int u0 = static_cast<int>(std::lround((-half_w - shift.x()) / l.step_um + l.centre + 0.5));
+    const int v0 = static_cast<int>(std::lround((-half_h - shift.y()) / l.step_um + l.centre + 0.5));
+    const int cells_w = image.cols / l.factor, cells_h = image.rows / l.factor;
+    return s - mean * l.factor * l.factor * l.sum(u0, v0, u0 + cells_w, v0 + cells_h);
+  };
+  // Global search over the field's shifts on the coarse grid.
+  const Level& coarse = levels_[0];
+  const Eigen::Vector2d reach =
+      shiftUm({degToRad(config_.fov.alpha_max_deg + 0.5), degToRad(config_.fov.beta_max_deg + 0.5)}).cwiseAbs();
+  const int rx = static_cast<int>(std::ceil(reach.x() / coarse.step_um));
+  const int ry = static_cast<int>(std::ceil(reach.y() / coarse.step_um));
+  const int gw = 2 * rx + 1, gh = 2 * ry + 1;
+  std::vector<double> map(static_cast<std::size_t>(gw * gh));
+  for (int j = 0; j < gh; ++j)
+    for (int i = 0; i < gw; ++i)
+      map[static_cast<std::size_t>(j * gw + i)] =
+          score(0, Eigen::Vector2d((i - rx) * coarse.step_um, (j - ry) * coarse.step_um));
+  std::vector<Peak> peaks;
+  for (int j = 0; j < gh; ++j)
+    for (int i = 0; i < gw; ++i) {
+      const double s = map[static_cast<std::size_t>(j * gw + i)];
+      bool local_max = true;
+      for (int dj = -1; dj <= 1 && local_max; ++dj)
+        for (int di = -1; di <= 1; ++di) {
+          const int ii = i + di, jj = j + dj;
+          if ((di || dj) && ii >= 0 && jj >= 0 && ii < gw && jj < gh &&
+              map[static_cast<std::size_t>(jj * gw + ii)] > s) {
+            local_max = false;
+            break;
+          }
+        }
+      if (local_max) peaks.push_back({s, Eigen::Vector2d((i - rx) * coarse.step_um, (j - ry) * coarse.step_um)});
+    }
+  std::sort(peaks.begin(), peaks.end(), [](const Peak& a, const Peak& b) { return a.score > b.score; });
+  if (peaks.size() > static_cast<std::size_t>(options_.candidates))
+    peaks.resize(static_cast<std::size_t>(options_.candidates));
+  // Each candidate: the best shift of the middle grid around it, then the fit.
+  const Level& middle = levels_[1];
+  const int span = coarse.factor / middle.factor + 1;
+  std::vector<PatternSolution> fits;
+  for (const auto& peak : peaks) {
+    Eigen::Vector2d shift = peak.shift_um;
+    double top = -std::numeric_limits<double>::infinity();
+    for (int j = -span; j <= span; ++j)
+      for (int i = -span; i <= span; ++i) {
+        const Eigen::Vector2d s = peak.shift_um + Eigen::Vector2d(i, j) * middle.step_um;
+        const double value = score(1, s);
+        if (value > top) {
+          top = value;
+          shift = s;
+        }
+      }
+    const auto solution = fit(px, anglesOfShift(shift));
+    if (solution && (!window || window->contains(solution->angles_rad))) fits.push_back(*solution);
+  }
+  if (fits.empty()) return std::nullopt;
+  std::sort(fits.begin(), fits.end(),
+            [](const PatternSolution& a, const PatternSolution& b) { return a.residual_rms_dn < b.residual_rms_dn; });
+  PatternSolution best = fits.front();
+  for (std::size_t k = 1; k < fits.size(); ++k)
+    if ((fits[k].angles_rad - best.angles_rad).norm() > degToRad(PatternSolution::kDistinctDeg)) {
+      best.alternative_rad = fits[k].angles_rad;
+      best.alternative_cost_ratio = fits[k].residual_rms_dn / std::max(best.residual_rms_dn, 1e-30);
+      break;
+    }
+  return best;
+}
+
+std::optional<PatternSolution> PatternSolver::refine(const cv::Mat& image, const Eigen::Vector2d& start_rad) const {
+  const Pixels px = pixelsOf(image);
+  if (px.lit.empty()) return std::nullopt;
+  return fit(px, start_rad);
+}
+
+std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vector2d angles) const {
+  const PatternTemplate& p = *template_;
+  // The gain that best explains the lit pixels at the start's shift.
+  double gain = 0.0;
+  {
+    const Eigen::Vector2d d = shiftUm(angles);
+    double vp = 0.0, pp = 0.0;
+    for (const auto& q : px.lit) {
+      const double t = p.at(q.x - d.x(), q.y - d.y());
+      vp += (q.value + offset_) * t;
+      pp += t * t;
+    }
+    if (!(pp > 0.0)) return std::nullopt;
+    gain = vp / pp;
+  }
+  PatternSolution out;
+  Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();
+  double sse = 0.0;
+  int used = 0;
+  bool converged = false;
+  for (int it = 0;; ++it) {
+    const Eigen::Vector2d d = shiftUm(angles);
+    Eigen::Matrix2d dd;  // d(shift)/d(angles)
+    constexpr double kStep = 1e-6;
+    for (int axis = 0; axis < 2; ++axis) {
+      Eigen::Vector2d e = Eigen::Vector2d::Zero();
+      e[axis] = kStep;
+      dd.col(axis) = (shiftUm(angles + e) - shiftUm(angles - e)) / (2.0 * kStep);
+    }
+    normal.setZero();
+    Eigen::Vector3d gradient = Eigen::Vector3d::Zero();
+    sse = 0.0;
+    used = 0;
+    auto add = [&](const Pixels::Pixel& q, bool lit) {
+      double gx = 0.0, gy = 0.0;
+      const double t = p.at(q.x - d.x(), q.y - d.y(), &gx, &gy);
+      const double predicted = gain * t - offset_;
+      if (!lit && !(predicted > floor_)) return;                // censored: dark, and predicted so
+      if (lit && q.value >= top_ && predicted >= top_) return;  // saturated, and predicted so
+      const double residual = (lit ? q.value : floor_) - predicted;
+      // d(predicted)/d(angles) = -gain grad P . d(shift)/d(angles)
+      const Eigen::Vector2d dangles = -gain * (dd.transpose() * Eigen::Vector2d(gx, gy));
+      const Eigen::Vector3d j(dangles.x(), dangles.y(), t);
+      normal += j * j.transpose();
+      gradient += j * residual;
+      sse += residual * residual;
+      ++used;
+    };
+    for (const auto& q : px.lit) add(q, true);
+    for (const auto& q : px.dark) add(q, false);
+    out.iterations = it;
+    if (converged || it == options_.iterations || used < 4) break;
+    const Eigen::Vector3d step = normal.ldlt().solve(gradient);
+    if (!step.allFinite()) return std::nullopt;
+    angles += step.head<2>();
+    gain += step[2];
+    converged = step.head<2>().norm() < 1e-12;  // one more pass: residual and normal matrix at the solution
+  }
+  if (used < 4 || !angles.allFinite()) return std::nullopt;
+  const Eigen::Matrix3d inverse = normal.inverse();
+  if (!inverse.allFinite()) return std::nullopt;
+  const double variance = sse / std::max(used - 3, 1);
+  out.angles_rad = angles;
+  out.covariance = variance * inverse.topLeftCorner<2, 2>();
+  out.gain = gain;
+  out.residual_rms_dn = std::sqrt(sse / used);
+  out.pixels = used;
+  return out;
+}
+
+}  // namespace dss

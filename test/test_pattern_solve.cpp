@@ -1,0 +1,107 @@
+// The whole-pattern solve of a mask whose spots merge (thesis_ca): it finds
+// the pattern's shift without a start, reads noise-free images to the
+// template's fidelity, and says when the pattern fits two places in the
+// field (thesis_ca's three column groups are translates of one another,
+// 5.74 deg apart in alpha), which a quadrant hint resolves.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "digital_sun_sensor/baseline/pattern_estimator.h"
+#include "digital_sun_sensor/baseline/pattern_solve.h"
+#include "digital_sun_sensor/common/estimate_status.h"
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
+
+namespace dss {
+namespace {
+
+std::string shippedPath(const std::string& name) {
+  return std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml";
+}
+
+cv::Mat noiseFree(const Renderer& renderer, double alpha_deg, double beta_deg) {
+  RenderOptions options;
+  options.noise = false;
+  return renderer.render(sunVectorFromAngles(degToRad(alpha_deg), degToRad(beta_deg)), 1, nullptr, options);
+}
+
+class PatternSolveTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    config_ = new SensorConfig(loadSensorConfig(shippedPath("thesis_ca")));
+    solver_ = new PatternSolver(*config_);
+    renderer_ = new Renderer(SensorInstance::nominalOf(*config_));
+  }
+  static void TearDownTestSuite() {
+    delete renderer_;
+    delete solver_;
+    delete config_;
+  }
+  static SensorConfig* config_;
+  static PatternSolver* solver_;
+  static Renderer* renderer_;
+};
+SensorConfig* PatternSolveTest::config_ = nullptr;
+PatternSolver* PatternSolveTest::solver_ = nullptr;
+Renderer* PatternSolveTest::renderer_ = nullptr;
+
+// The image at normal incidence is the template, quantised to 8 bits and
+// cut by the threshold: read to 0.00005 deg (0.004 um at the mask height).
+TEST_F(PatternSolveTest, NormalIncidenceIsTheTemplateItself) {
+  const auto s = solver_->solve(noiseFree(*renderer_, 0.0, 0.0));
+  ASSERT_TRUE(s);
+  EXPECT_LT(std::abs(radToDeg(s->angles_rad.x())), 5e-5);
+  EXPECT_LT(std::abs(radToDeg(s->angles_rad.y())), 5e-5);
+}
+
+// Without a start: the search finds the shift, Gauss-Newton reads it to
+// the template's fidelity (the spots' shape changes with the angle through
+// vignetting: up to 0.0006 deg, 0.05 um at the mask height, near 4 deg).
+// Where |alpha| < 0.9 deg no other shift in the field fits: answered.
+TEST_F(PatternSolveTest, FindsTheShiftOfNoiseFreeImages) {
+  const PatternEstimator estimator(*config_);
+  for (const auto& angles : {Eigen::Vector2d(0.7, -3.9), Eigen::Vector2d(-0.4, 2.2), Eigen::Vector2d(0.9, 4.4)}) {
+    const SunEstimate e = estimator.estimateOne(noiseFree(*renderer_, angles.x(), angles.y()));
+    ASSERT_TRUE(e.valid) << e.status;
+    EXPECT_NEAR(radToDeg(e.alpha_rad), angles.x(), 1e-3) << angles.transpose();
+    EXPECT_NEAR(radToDeg(e.beta_rad), angles.y(), 1e-3) << angles.transpose();
+  }
+}
+
+// At alpha = -3 deg the middle column group sits where the left one would
+// at +2.74 deg: the image fits both, the estimator declines, a quadrant
+// hint answers.
+TEST_F(PatternSolveTest, RepeatingPatternIsAmbiguousUntilTheQuadrantIsGiven) {
+  const cv::Mat image = noiseFree(*renderer_, -3.0, 1.0);
+  const auto s = solver_->solve(image);
+  ASSERT_TRUE(s);
+  EXPECT_LT(s->alternative_cost_ratio, PatternEstimator::kAmbiguousCostRatio);
+  const double period_deg = std::abs(radToDeg(s->angles_rad.x() - s->alternative_rad.x()));
+  EXPECT_NEAR(period_deg, 5.74, 0.05);
+
+  PatternEstimator estimator(*config_);
+  EXPECT_EQ(estimator.source(), "pattern");
+  const SunEstimate plain = estimator.estimate({image}).at(0);
+  EXPECT_FALSE(plain.valid);
+  EXPECT_EQ(status::statusCode(plain.status), status::kAmbiguousAperture);
+  const SunEstimate hinted =
+      estimator.estimateWithSubFovHints({image}, {quadrantClass(degToRad(-3.0), degToRad(1.0))}).at(0);
+  ASSERT_TRUE(hinted.valid) << hinted.status;
+  EXPECT_NEAR(radToDeg(hinted.alpha_rad), -3.0, 1e-3);
+  EXPECT_NEAR(radToDeg(hinted.beta_rad), 1.0, 1e-3);
+  EXPECT_EQ(hinted.subfov_class, quadrantClass(degToRad(-3.0), degToRad(1.0)));
+  EXPECT_GT(hinted.covariance[0], 0.0);
+}
+
+TEST_F(PatternSolveTest, BadImagesAndHintsAreRefusedByName) {
+  PatternEstimator estimator(*config_);
+  EXPECT_EQ(status::statusCode(estimator.estimateOne(cv::Mat::zeros(10, 10, CV_8U)).status), status::kBadImage);
+  EXPECT_EQ(estimator.estimateOne(cv::Mat::zeros(512, 512, CV_8U)).status, status::kNoSun);
+  EXPECT_THROW(estimator.estimateWithSubFovHints({cv::Mat::zeros(512, 512, CV_8U)}, {}), std::invalid_argument);
+  EXPECT_THROW(estimator.estimateWithSubFovHints({cv::Mat::zeros(512, 512, CV_8U)}, {7}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace dss
