@@ -2,6 +2,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <opencv2/imgproc.hpp>
@@ -59,6 +60,8 @@ PatternSolver::PatternSolver(const SensorConfig& config, PatternSolveOptions opt
     offset_ = -config.noise.black_level_dn;
     floor_ = config.threshold.enabled ? level * top_ : -std::numeric_limits<double>::infinity();
   }
+  if (options_.middle_factor < 1 || options_.coarse_factor % options_.middle_factor != 0)
+    throw std::invalid_argument("pattern solve: the coarse block size must be a multiple of the middle one");
   // Where lit pixels can lie: above 90 % of the threshold's share of the peak.
   const double above = 0.9 * level;
   for (int factor : {options_.coarse_factor, options_.middle_factor}) {
@@ -149,7 +152,7 @@ namespace {
 
 struct Peak {
   double score;
-  Eigen::Vector2d shift_um;
+  int u, v;  // shift in coarse cells
 };
 
 }  // namespace
@@ -165,18 +168,28 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   // template's light in the window would draw at the image's mean level.
   const double half_w = 0.5 * image.cols * config_.detector.pitch_um;
   const double half_h = 0.5 * image.rows * config_.detector.pitch_um;
-  auto score = [&](std::size_t level, const Eigen::Vector2d& shift) {
+  // Shifts are whole cells of the level's grid: each block's cell is
+  // found once, and a shift only offsets the indices.
+  struct Cell {
+    int u, v;
+    double value;
+  };
+  std::vector<std::vector<Cell>> cells(levels_.size());
+  std::vector<std::array<int, 2>> window_cell(levels_.size());
+  for (std::size_t level = 0; level < levels_.size(); ++level) {
+    const Level& l = levels_[level];
+    for (const auto& b : px.blocks[level])
+      cells[level].push_back({static_cast<int>(std::lround(b.x / l.step_um + l.centre)),
+                              static_cast<int>(std::lround(b.y / l.step_um + l.centre)), b.value});
+    window_cell[level] = {static_cast<int>(std::lround(-half_w / l.step_um + l.centre + 0.5)),
+                          static_cast<int>(std::lround(-half_h / l.step_um + l.centre + 0.5))};
+  }
+  auto score = [&](std::size_t level, int shift_u, int shift_v) {
     const Level& l = levels_[level];
     double s = 0.0;
-    for (const auto& b : px.blocks[level]) {
-      const int u = static_cast<int>(std::lround((b.x - shift.x()) / l.step_um + l.centre));
-      const int v = static_cast<int>(std::lround((b.y - shift.y()) / l.step_um + l.centre));
-      s += b.value * l.at(u, v);
-    }
-    const int u0 = static_cast<int>(std::lround((-half_w - shift.x()) / l.step_um + l.centre + 0.5));
-    const int v0 = static_cast<int>(std::lround((-half_h - shift.y()) / l.step_um + l.centre + 0.5));
-    const int cells_w = image.cols / l.factor, cells_h = image.rows / l.factor;
-    return s - mean * l.factor * l.factor * l.sum(u0, v0, u0 + cells_w, v0 + cells_h);
+    for (const auto& c : cells[level]) s += c.value * l.at(c.u - shift_u, c.v - shift_v);
+    const int u0 = window_cell[level][0] - shift_u, v0 = window_cell[level][1] - shift_v;
+    return s - mean * l.factor * l.factor * l.sum(u0, v0, u0 + image.cols / l.factor, v0 + image.rows / l.factor);
   };
   // Global search over the field's shifts on the coarse grid.
   const Level& coarse = levels_[0];
@@ -187,9 +200,7 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   const int gw = 2 * rx + 1, gh = 2 * ry + 1;
   std::vector<double> map(static_cast<std::size_t>(gw * gh));
   for (int j = 0; j < gh; ++j)
-    for (int i = 0; i < gw; ++i)
-      map[static_cast<std::size_t>(j * gw + i)] =
-          score(0, Eigen::Vector2d((i - rx) * coarse.step_um, (j - ry) * coarse.step_um));
+    for (int i = 0; i < gw; ++i) map[static_cast<std::size_t>(j * gw + i)] = score(0, i - rx, j - ry);
   std::vector<Peak> peaks;
   for (int j = 0; j < gh; ++j)
     for (int i = 0; i < gw; ++i) {
@@ -204,38 +215,42 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
             break;
           }
         }
-      if (local_max) peaks.push_back({s, Eigen::Vector2d((i - rx) * coarse.step_um, (j - ry) * coarse.step_um)});
+      if (local_max) peaks.push_back({s, i - rx, j - ry});
     }
   std::sort(peaks.begin(), peaks.end(), [](const Peak& a, const Peak& b) { return a.score > b.score; });
   if (peaks.size() > static_cast<std::size_t>(options_.candidates))
     peaks.resize(static_cast<std::size_t>(options_.candidates));
   // Each candidate: the best shift of the middle grid around it, then the fit.
   const Level& middle = levels_[1];
-  const int span = coarse.factor / middle.factor + 1;
+  const int ratio = coarse.factor / middle.factor, span = ratio + 1;
   std::vector<PatternSolution> fits;
   for (const auto& peak : peaks) {
-    Eigen::Vector2d shift = peak.shift_um;
+    int best_u = peak.u * ratio, best_v = peak.v * ratio;
     double top = -std::numeric_limits<double>::infinity();
     for (int j = -span; j <= span; ++j)
       for (int i = -span; i <= span; ++i) {
-        const Eigen::Vector2d s = peak.shift_um + Eigen::Vector2d(i, j) * middle.step_um;
-        const double value = score(1, s);
+        const double value = score(1, peak.u * ratio + i, peak.v * ratio + j);
         if (value > top) {
           top = value;
-          shift = s;
+          best_u = peak.u * ratio + i;
+          best_v = peak.v * ratio + j;
         }
       }
-    const auto solution = fit(px, anglesOfShift(shift));
+    const Eigen::Vector2d shift = Eigen::Vector2d(best_u, best_v) * middle.step_um;
+    const auto solution = fit(px, anglesOfShift(shift), options_.candidate_stride, options_.candidate_iterations);
     if (solution && (!window || window->contains(solution->angles_rad))) fits.push_back(*solution);
   }
   if (fits.empty()) return std::nullopt;
   std::sort(fits.begin(), fits.end(),
             [](const PatternSolution& a, const PatternSolution& b) { return a.residual_rms_dn < b.residual_rms_dn; });
-  PatternSolution best = fits.front();
+  // The winner on every pixel; the runner-up's residual against the
+  // winner's on the same subsample.
+  auto best = fit(px, fits.front().angles_rad, 1, options_.iterations);
+  if (!best) return std::nullopt;
   for (std::size_t k = 1; k < fits.size(); ++k)
-    if ((fits[k].angles_rad - best.angles_rad).norm() > degToRad(PatternSolution::kDistinctDeg)) {
-      best.alternative_rad = fits[k].angles_rad;
-      best.alternative_cost_ratio = fits[k].residual_rms_dn / std::max(best.residual_rms_dn, 1e-30);
+    if ((fits[k].angles_rad - fits.front().angles_rad).norm() > degToRad(PatternSolution::kDistinctDeg)) {
+      best->alternative_rad = fits[k].angles_rad;
+      best->alternative_cost_ratio = fits[k].residual_rms_dn / std::max(fits.front().residual_rms_dn, 1e-30);
       break;
     }
   return best;
@@ -244,17 +259,21 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
 std::optional<PatternSolution> PatternSolver::refine(const cv::Mat& image, const Eigen::Vector2d& start_rad) const {
   const Pixels px = pixelsOf(image);
   if (px.lit.empty()) return std::nullopt;
-  return fit(px, start_rad);
+  const auto start = fit(px, start_rad, options_.candidate_stride, options_.candidate_iterations);
+  return start ? fit(px, start->angles_rad, 1, options_.iterations) : std::nullopt;
 }
 
-std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vector2d angles) const {
+std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vector2d angles, int stride,
+                                                  int iterations) const {
+  const auto step_by = static_cast<std::size_t>(std::max(stride, 1));
   const PatternTemplate& p = *template_;
   // The gain that best explains the lit pixels at the start's shift.
   double gain = 0.0;
   {
     const Eigen::Vector2d d = shiftUm(angles);
     double vp = 0.0, pp = 0.0;
-    for (const auto& q : px.lit) {
+    for (std::size_t i = 0; i < px.lit.size(); i += step_by) {
+      const auto& q = px.lit[i];
       const double t = p.at(q.x - d.x(), q.y - d.y());
       vp += (q.value + offset_) * t;
       pp += t * t;
@@ -295,10 +314,10 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
       sse += residual * residual;
       ++used;
     };
-    for (const auto& q : px.lit) add(q, true);
-    for (const auto& q : px.dark) add(q, false);
+    for (std::size_t i = 0; i < px.lit.size(); i += step_by) add(px.lit[i], true);
+    for (std::size_t i = 0; i < px.dark.size(); i += step_by) add(px.dark[i], false);
     out.iterations = it;
-    if (converged || it == options_.iterations || used < 4) break;
+    if (converged || it == iterations || used < 4) break;
     const Eigen::Vector3d step = normal.ldlt().solve(gradient);
     if (!step.allFinite()) return std::nullopt;
     angles += step.head<2>();

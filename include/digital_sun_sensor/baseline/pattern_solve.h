@@ -23,11 +23,13 @@
 namespace dss {
 
 struct PatternSolveOptions {
-  int coarse_factor = 8;  // block size of the global search [px]
-  int middle_factor = 2;  // block size of the local search around each candidate [px]
-  int candidates = 6;     // global search peaks refined
-  int iterations = 10;    // Gauss-Newton iterations at full resolution
-  int dark_band_px = 2;   // dark pixels this close to a lit one enter the fit (censored)
+  int coarse_factor = 8;         // block size of the global search [px]
+  int middle_factor = 2;         // block size of the local search around each candidate [px]
+  int candidates = 6;            // global search peaks refined...
+  int candidate_stride = 4;      // ...on every this-many-th pixel...
+  int candidate_iterations = 4;  // ...by this many Gauss-Newton iterations
+  int iterations = 10;           // then the best on every pixel
+  int dark_band_px = 2;          // dark pixels this close to a lit one enter the fit (censored)
 };
 
 struct PatternSolution {
@@ -81,7 +83,8 @@ class PatternSolver {
   struct Pixels;
   struct Level;
   Pixels pixelsOf(const cv::Mat& image) const;
-  std::optional<PatternSolution> fit(const Pixels& pixels, Eigen::Vector2d angles) const;
+  // Gauss-Newton on every `stride`-th pixel.
+  std::optional<PatternSolution> fit(const Pixels& pixels, Eigen::Vector2d angles, int stride, int iterations) const;
   Eigen::Vector2d anglesOfShift(const Eigen::Vector2d& shift_um) const;
 
   SensorConfig config_;
