@@ -217,6 +217,11 @@ TEST(EstimatorFactory, ParsesSpecsAndChecksTheSensor) {
   const SensorConfig coded = shipped("thesis_ca");
   EXPECT_EQ(makeEstimator("pattern:" + ca, &coded)->source(), "pattern");
   EXPECT_THROW(makeEstimator("pattern:" + ca, &sa), std::invalid_argument);
+  // A merged-spot sensor falls back to its whole-pattern estimator.
+  const EstimatorChoice pattern = chooseEstimator("", kPatternFallback, coded);
+  ASSERT_TRUE(pattern.estimator) << pattern.problem;
+  EXPECT_EQ(pattern.estimator->source(), "pattern");
+  EXPECT_TRUE(pattern.is_fallback);
   // Only an estimator that can use a sub-FOV hint takes one.
   EXPECT_THROW(makeEstimator("centroid:" + calibrationPath(), &sa)->estimateWithSubFovHints({}, {}),
                std::invalid_argument);

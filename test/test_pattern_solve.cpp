@@ -27,6 +27,8 @@ cv::Mat noiseFree(const Renderer& renderer, double alpha_deg, double beta_deg) {
   return renderer.render(sunVectorFromAngles(degToRad(alpha_deg), degToRad(beta_deg)), 1, nullptr, options);
 }
 
+const PatternEstimatorOptions kNoSigmaImages{0, 1};
+
 class PatternSolveTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -61,7 +63,7 @@ TEST_F(PatternSolveTest, NormalIncidenceIsTheTemplateItself) {
 // vignetting: up to 0.0006 deg, 0.05 um at the mask height, near 4 deg).
 // Where |alpha| < 0.9 deg no other shift in the field fits: answered.
 TEST_F(PatternSolveTest, FindsTheShiftOfNoiseFreeImages) {
-  const PatternEstimator estimator(*config_);
+  const PatternEstimator estimator(*config_, kNoSigmaImages);
   for (const auto& angles : {Eigen::Vector2d(0.7, -3.9), Eigen::Vector2d(-0.4, 2.2), Eigen::Vector2d(0.9, 4.4)}) {
     const SunEstimate e = estimator.estimateOne(noiseFree(*renderer_, angles.x(), angles.y()));
     ASSERT_TRUE(e.valid) << e.status;
@@ -81,7 +83,7 @@ TEST_F(PatternSolveTest, RepeatingPatternIsAmbiguousUntilTheQuadrantIsGiven) {
   const double period_deg = std::abs(radToDeg(s->angles_rad.x() - s->alternative_rad.x()));
   EXPECT_NEAR(period_deg, 5.74, 0.05);
 
-  PatternEstimator estimator(*config_);
+  PatternEstimator estimator(*config_, kNoSigmaImages);
   EXPECT_EQ(estimator.source(), "pattern");
   const SunEstimate plain = estimator.estimate({image}).at(0);
   EXPECT_FALSE(plain.valid);
@@ -95,8 +97,28 @@ TEST_F(PatternSolveTest, RepeatingPatternIsAmbiguousUntilTheQuadrantIsGiven) {
   EXPECT_GT(hinted.covariance[0], 0.0);
 }
 
+// The solve's sigma takes the residual as independent pixel noise; on the
+// design's own noisy images the errors are larger than that (the
+// template's error is correlated over the pattern): the scale measured at
+// construction says by how much, and the covariance carries it.
+TEST_F(PatternSolveTest, SigmaScaleIsMeasuredOnTheDesignsOwnImages) {
+  PatternEstimatorOptions options;
+  options.sigma_images = 12;
+  const PatternEstimator estimator(*config_, options);
+  for (double scale : estimator.sigmaScale()) {
+    EXPECT_GT(scale, 1.0);
+    EXPECT_LT(scale, 4.0);
+  }
+  const PatternEstimator unscaled(*config_, kNoSigmaImages);
+  const cv::Mat image = noiseFree(*renderer_, 0.3, -0.2);
+  const SunEstimate a = estimator.estimateOne(image), b = unscaled.estimateOne(image);
+  ASSERT_TRUE(a.valid && b.valid);
+  EXPECT_NEAR(a.covariance[0] / b.covariance[0], estimator.sigmaScale()[0] * estimator.sigmaScale()[0], 1e-9);
+  EXPECT_NEAR(a.covariance[3] / b.covariance[3], estimator.sigmaScale()[1] * estimator.sigmaScale()[1], 1e-9);
+}
+
 TEST_F(PatternSolveTest, BadImagesAndHintsAreRefusedByName) {
-  PatternEstimator estimator(*config_);
+  PatternEstimator estimator(*config_, kNoSigmaImages);
   EXPECT_EQ(status::statusCode(estimator.estimateOne(cv::Mat::zeros(10, 10, CV_8U)).status), status::kBadImage);
   EXPECT_EQ(estimator.estimateOne(cv::Mat::zeros(512, 512, CV_8U)).status, status::kNoSun);
   EXPECT_THROW(estimator.estimateWithSubFovHints({cv::Mat::zeros(512, 512, CV_8U)}, {}), std::invalid_argument);

@@ -6,16 +6,56 @@
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/common/estimate_status.h"
+#include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
 
-PatternEstimator::PatternEstimator(const SensorConfig& config)
+PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEstimatorOptions& options)
     : config_(config), input_(inputSpecFor(config)), solver_(config) {
   const Eigen::Vector2d half(degToRad(config.fov.alpha_max_deg + kFieldMarginDeg),
                              degToRad(config.fov.beta_max_deg + kFieldMarginDeg));
   field_ = {-half, half};
+  if (options.sigma_images <= 0) return;
+  // The design with its detector's fixed patterns and noise, no unit errors, no anomalies.
+  SensorConfig design = config;
+  design.as_built = AsBuiltConfig{};
+  design.anomalies = AnomalyConfig{};
+  design.anomalies.hot_pixel_count = 0;
+  const Renderer renderer(SensorInstance::draw(design, options.sigma_seed));
+  Rng rng(deriveSeed(options.sigma_seed, 0x51C));
+  std::array<double, 2> z2{0.0, 0.0};
+  int count = 0;
+  for (int k = 0; k < options.sigma_images; ++k) {
+    const Eigen::Vector2d truth(degToRad(config.fov.alpha_max_deg) * rng.uniform(-1.0, 1.0),
+                                degToRad(config.fov.beta_max_deg) * rng.uniform(-1.0, 1.0));
+    const cv::Mat image =
+        renderer.render(sunVectorFromAngles(truth.x(), truth.y()), deriveSeed(options.sigma_seed, k), nullptr);
+    const auto s = solver_.solve(image, quadrantWindow(quadrantClass(truth.x(), truth.y())));
+    if (!s || !(s->covariance(0, 0) > 0.0) || !(s->covariance(1, 1) > 0.0)) continue;
+    const Eigen::Vector2d error = s->angles_rad - truth;
+    if (error.norm() > degToRad(0.1)) continue;  // a wrong shift, not noise
+    z2[0] += error.x() * error.x() / s->covariance(0, 0);
+    z2[1] += error.y() * error.y() / s->covariance(1, 1);
+    ++count;
+  }
+  if (count >= options.sigma_images / 2) sigma_scale_ = {std::sqrt(z2[0] / count), std::sqrt(z2[1] / count)};
+}
+
+AngleWindow PatternEstimator::quadrantWindow(int quadrant) const {
+  const double margin = degToRad(kFieldMarginDeg);
+  AngleWindow window = field_;
+  if (quadrant & 1)
+    window.min_rad.x() = -margin;
+  else
+    window.max_rad.x() = margin;
+  if (quadrant & 2)
+    window.min_rad.y() = -margin;
+  else
+    window.max_rad.y() = margin;
+  return window;
 }
 
 std::vector<SunEstimate> PatternEstimator::estimate(const std::vector<cv::Mat>& images) {
@@ -33,22 +73,12 @@ std::vector<SunEstimate> PatternEstimator::estimateWithSubFovHints(const std::ve
   if (config_.subfov != SubFovType::kQuadrant)
     throw std::invalid_argument("pattern estimator: sub-FOV hints are quadrants; sensor '" + config_.name +
                                 "' names its sub-FOV by aperture");
-  const double margin = degToRad(kFieldMarginDeg);
   std::vector<SunEstimate> out;
   out.reserve(images.size());
   for (std::size_t k = 0; k < images.size(); ++k) {
     const int q = subfov_classes[k];
     if (q < 0 || q > 3) throw std::invalid_argument("pattern estimator: quadrant hint " + std::to_string(q));
-    AngleWindow window = field_;
-    if (q & 1)
-      window.min_rad.x() = -margin;
-    else
-      window.max_rad.x() = margin;
-    if (q & 2)
-      window.min_rad.y() = -margin;
-    else
-      window.max_rad.y() = margin;
-    out.push_back(estimateOne(images[k], window));
+    out.push_back(estimateOne(images[k], quadrantWindow(q)));
   }
   return out;
 }
@@ -72,7 +102,8 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   }
   est.alpha_rad = solution->angles_rad.x();
   est.beta_rad = solution->angles_rad.y();
-  const Eigen::Matrix2d& cov = solution->covariance;
+  const Eigen::Matrix2d scale = Eigen::Vector2d(sigma_scale_[0], sigma_scale_[1]).asDiagonal();
+  const Eigen::Matrix2d cov = scale * solution->covariance * scale;
   est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
   if (config_.subfov == SubFovType::kQuadrant) {
     est.subfov_class = quadrantClass(est.alpha_rad, est.beta_rad);

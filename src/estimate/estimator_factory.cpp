@@ -65,10 +65,14 @@ EstimatorChoice chooseEstimator(const std::string& model_path, const std::string
     return choice;
   }
   try {
-    choice.estimator = makeCentroid(calibration_path, &sensor);
+    if (calibration_path == kPatternFallback)
+      choice.estimator = std::make_unique<PatternEstimator>(sensor);
+    else
+      choice.estimator = makeCentroid(calibration_path, &sensor);
     choice.is_fallback = true;
   } catch (const std::exception& e) {
-    choice.problem += std::string("; centroid fallback failed too: ") + e.what();
+    choice.problem += std::string("; ") + (calibration_path == kPatternFallback ? "pattern" : "centroid") +
+                      " fallback failed too: " + e.what();
   }
   return choice;
 }

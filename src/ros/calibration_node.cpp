@@ -106,8 +106,8 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
     ROS_ERROR("calibration_node: no estimator: %s. Every image will be answered valid=false (no_estimator).",
               estimator_problem_.c_str());
   } else if (is_fallback_) {
-    ROS_WARN("calibration_node: SSCNN not used (%s); falling back to the centroid baseline from %s",
-             estimator_problem_.c_str(), calibration_path_.c_str());
+    ROS_WARN("calibration_node: SSCNN not used (%s); falling back to the %s baseline from %s",
+             estimator_problem_.c_str(), estimator_->source().c_str(), calibration_path_.c_str());
   } else {
     ROS_INFO("calibration_node: SSCNN model %s for sensor %s (mirror images averaged: %s)%s", model_path_.c_str(),
              sensor_name_.c_str(), inference_symmetry_.c_str(),

@@ -6,6 +6,8 @@
 // ambiguous_aperture, with the better fit's angles.
 #pragma once
 
+#include <array>
+#include <cstdint>
 #include <memory>
 #include <optional>
 
@@ -15,6 +17,15 @@
 
 namespace dss {
 
+struct PatternEstimatorOptions {
+  // The solve's covariance takes the residual as independent pixel noise;
+  // the template's own error is not. Its scale per axis is measured at
+  // construction on this many noisy images of the design (seeded, over
+  // the field, each solved in its quadrant): RMS of error / sigma. 0: 1.
+  int sigma_images = 24;
+  std::uint64_t sigma_seed = 1;
+};
+
 class PatternEstimator : public SunEstimator {
  public:
   // An alternative fit inside the field (plus this margin) whose residual
@@ -22,7 +33,7 @@ class PatternEstimator : public SunEstimator {
   static constexpr double kAmbiguousCostRatio = 1.01;
   static constexpr double kFieldMarginDeg = 0.25;
 
-  explicit PatternEstimator(const SensorConfig& config);
+  explicit PatternEstimator(const SensorConfig& config, const PatternEstimatorOptions& options = {});
 
   std::string source() const override { return "pattern"; }
   const SensorConfig& sensor() const override { return config_; }
@@ -34,12 +45,17 @@ class PatternEstimator : public SunEstimator {
 
   // Within `window` (default: the field of view plus the margin).
   SunEstimate estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window = {}) const;
+  // The window of a quadrant hint: the quadrant plus the field margin across its axes.
+  AngleWindow quadrantWindow(int quadrant) const;
+  // What multiplies the solve's sigma per axis (PatternEstimatorOptions).
+  const std::array<double, 2>& sigmaScale() const { return sigma_scale_; }
 
  private:
   SensorConfig config_;
   InputSpec input_;
   PatternSolver solver_;
   AngleWindow field_;
+  std::array<double, 2> sigma_scale_{1.0, 1.0};
 };
 
 }  // namespace dss

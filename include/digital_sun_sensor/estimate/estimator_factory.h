@@ -32,13 +32,18 @@ std::unique_ptr<SunEstimator> makeEstimator(const std::string& spec, const Senso
 
 struct EstimatorChoice {
   std::unique_ptr<SunEstimator> estimator;  // null when neither file could be used
-  bool is_fallback = false;                 // the centroid baseline stands in for the SSCNN
+  bool is_fallback = false;                 // the baseline (centroid or pattern) stands in for the SSCNN
   std::string problem;                      // why the SSCNN (and the fallback) was not used; empty if it was
 };
 
+// The calibration path that names the whole-pattern estimator of the sensor
+// (baseline/pattern_estimator.h) as the fallback: no file, the design itself.
+constexpr const char* kPatternFallback = "pattern";
+
 // The SSCNN from `model_path` when it loads and fits `sensor`; otherwise the
-// centroid baseline from `calibration_path` (when not empty). Never throws for
-// a missing or bad file: the reason is in `problem`.
+// centroid baseline from `calibration_path` (when not empty; kPatternFallback:
+// the whole-pattern estimator). Never throws for a missing or bad file: the
+// reason is in `problem`.
 EstimatorChoice chooseEstimator(const std::string& model_path, const std::string& calibration_path,
                                 const SensorConfig& sensor, const EstimatorOptions& options = {});
 
