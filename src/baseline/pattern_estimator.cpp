@@ -14,7 +14,7 @@
 namespace dss {
 
 PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEstimatorOptions& options)
-    : config_(config), input_(inputSpecFor(config)), solver_(config) {
+    : config_(config), input_(inputSpecFor(config)), solver_(config), design_(SensorInstance::nominalOf(config)) {
   const Eigen::Vector2d half(degToRad(config.fov.alpha_max_deg + kFieldMarginDeg),
                              degToRad(config.fov.beta_max_deg + kFieldMarginDeg));
   field_ = {-half, half};
@@ -42,6 +42,18 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
     ++count;
   }
   if (count >= options.sigma_images / 2) sigma_scale_ = {std::sqrt(z2[0] / count), std::sqrt(z2[1] / count)};
+}
+
+double PatternEstimator::renderedMismatch(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const {
+  RenderOptions options;
+  options.noise = false;
+  options.anomalies = false;
+  const cv::Mat expected = design_.render(sunVectorFromAngles(angles_rad.x(), angles_rad.y()), 1, nullptr, options);
+  cv::Mat a, b;
+  image.convertTo(a, CV_64F);
+  expected.convertTo(b, CV_64F);
+  const cv::Mat difference = a - b;
+  return difference.dot(difference);
 }
 
 AngleWindow PatternEstimator::quadrantWindow(int quadrant) const {
@@ -95,10 +107,30 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
     est.status = status::kNoSun;
     return est;
   }
-  const auto solution = solver_.solve(image, window ? *window : field_);
+  auto solution = solver_.solve(image, window ? *window : field_);
   if (!solution) {
     est.status = status::kNoMatch;
     return est;
+  }
+  // Two places fit the template about equally: the design's whole image at
+  // each (its vignetting, obliquity and exposure at that angle, which the
+  // template at normal incidence leaves out) says which one the image is.
+  bool ambiguous = solution->alternative_cost_ratio < kAmbiguousCostRatio;
+  if (ambiguous) {
+    const double here = renderedMismatch(image, solution->angles_rad);
+    const double there = renderedMismatch(image, solution->alternative_rad);
+    if (there > here * kRenderedCostRatio) {
+      ambiguous = false;
+    } else if (here > there * kRenderedCostRatio) {
+      const Eigen::Vector2d other = solution->alternative_rad;
+      solution = solver_.refine(image, other);
+      if (!solution) {
+        est.status = status::kNoMatch;
+        return est;
+      }
+      solution->alternative_rad = other;  // refined from there; the first fit is the runner-up now
+      ambiguous = false;
+    }
   }
   est.alpha_rad = solution->angles_rad.x();
   est.beta_rad = solution->angles_rad.y();
@@ -116,7 +148,7 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
       if (p && p->squaredNorm() < best) best = p->squaredNorm(), est.subfov_class = i;
     }
   }
-  if (solution->alternative_cost_ratio < kAmbiguousCostRatio) {
+  if (ambiguous) {
     est.status = status::withDetail(status::kAmbiguousAperture,
                                     "the pattern fits equally at alpha " +
                                         std::to_string(radToDeg(solution->alternative_rad.x())) + ", beta " +

@@ -243,14 +243,20 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   if (fits.empty()) return std::nullopt;
   std::sort(fits.begin(), fits.end(),
             [](const PatternSolution& a, const PatternSolution& b) { return a.residual_rms_dn < b.residual_rms_dn; });
-  // The winner on every pixel; the runner-up's residual against the
-  // winner's on the same subsample.
-  auto best = fit(px, fits.front().angles_rad, 1, options_.iterations);
+  // The first candidate whose fit on every pixel stays in the window; the
+  // runner-up's residual against its own on the same subsample.
+  std::optional<PatternSolution> best;
+  std::size_t winner = 0;
+  for (; winner < fits.size() && !best; ++winner) {
+    best = fit(px, fits[winner].angles_rad, 1, options_.iterations);
+    if (best && window && !window->contains(best->angles_rad)) best.reset();
+  }
   if (!best) return std::nullopt;
-  for (std::size_t k = 1; k < fits.size(); ++k)
-    if ((fits[k].angles_rad - fits.front().angles_rad).norm() > degToRad(PatternSolution::kDistinctDeg)) {
+  const PatternSolution& chosen = fits[winner - 1];
+  for (std::size_t k = 0; k < fits.size(); ++k)
+    if (k != winner - 1 && (fits[k].angles_rad - chosen.angles_rad).norm() > degToRad(PatternSolution::kDistinctDeg)) {
       best->alternative_rad = fits[k].angles_rad;
-      best->alternative_cost_ratio = fits[k].residual_rms_dn / std::max(fits.front().residual_rms_dn, 1e-30);
+      best->alternative_cost_ratio = fits[k].residual_rms_dn / std::max(chosen.residual_rms_dn, 1e-30);
       break;
     }
   return best;

@@ -1,8 +1,9 @@
 // The conventional estimator for masks whose spots merge (thesis_ca), where
 // the centroid chain finds no spot to match: the whole-pattern solve
 // (baseline/pattern_solve.h) on the sensor's design, no training and no
-// calibration. An image that fits two places in the field about equally
-// (a pattern that repeats within the field) is answered
+// calibration. Where the pattern repeats within the field, an image that
+// fits two places about equally is decided by the design's rendered image
+// at each; if that cannot tell them apart either, it is answered
 // ambiguous_aperture, with the better fit's angles.
 #pragma once
 
@@ -14,6 +15,7 @@
 #include "digital_sun_sensor/baseline/pattern_solve.h"
 #include "digital_sun_sensor/common/sun_estimate.h"
 #include "digital_sun_sensor/model/input_spec.h"
+#include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
 
@@ -29,8 +31,11 @@ struct PatternEstimatorOptions {
 class PatternEstimator : public SunEstimator {
  public:
   // An alternative fit inside the field (plus this margin) whose residual
-  // is within this ratio of the best makes the image ambiguous.
+  // is within this ratio of the best sends the image to the design's
+  // rendered image at both places; it stays ambiguous when their squared
+  // differences from the image are within kRenderedCostRatio.
   static constexpr double kAmbiguousCostRatio = 1.01;
+  static constexpr double kRenderedCostRatio = 1.005;
   static constexpr double kFieldMarginDeg = 0.25;
 
   explicit PatternEstimator(const SensorConfig& config, const PatternEstimatorOptions& options = {});
@@ -47,6 +52,9 @@ class PatternEstimator : public SunEstimator {
   SunEstimate estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window = {}) const;
   // The window of a quadrant hint: the quadrant plus the field margin across its axes.
   AngleWindow quadrantWindow(int quadrant) const;
+  // Squared difference [DN^2] of the image from the design's noise-free
+  // image at these angles (exposure and threshold as the sensor's).
+  double renderedMismatch(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const;
   // What multiplies the solve's sigma per axis (PatternEstimatorOptions).
   const std::array<double, 2>& sigmaScale() const { return sigma_scale_; }
 
@@ -54,6 +62,7 @@ class PatternEstimator : public SunEstimator {
   SensorConfig config_;
   InputSpec input_;
   PatternSolver solver_;
+  Renderer design_;  // the nominal design, for alias decisions
   AngleWindow field_;
   std::array<double, 2> sigma_scale_{1.0, 1.0};
 };
