@@ -49,6 +49,18 @@ std::optional<Eigen::Vector2d> MaskGeometry::spotPx(int i, const Eigen::Vector3d
   return Eigen::Vector2d(*hit / pitch_um);
 }
 
+int subFovClassOf(SubFovType type, const MaskGeometry& geometry, double alpha_rad, double beta_rad) {
+  if (type == SubFovType::kQuadrant) return quadrantClass(alpha_rad, beta_rad);
+  const Eigen::Vector3d sun = sunVectorFromAngles(alpha_rad, beta_rad);
+  int nearest = -1;
+  double best = std::numeric_limits<double>::max();
+  for (int i = 0; i < geometry.numApertures(); ++i) {
+    const auto p = geometry.spotPx(i, sun);
+    if (p && p->squaredNorm() < best) best = p->squaredNorm(), nearest = i;
+  }
+  return nearest;
+}
+
 bool MaskGeometry::insideDetector(const Eigen::Vector2d& spot_px, double margin_px) const {
   return std::abs(spot_px.x()) < 0.5 * width_px - margin_px && std::abs(spot_px.y()) < 0.5 * height_px - margin_px;
 }

@@ -2,7 +2,6 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
-#include <limits>
 
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/sim/geometry.h"
@@ -55,16 +54,7 @@ SunEstimate CentroidEstimator::estimateOne(const cv::Mat& image, std::vector<Det
   const double sigma = calibration_.centroid_sigma_px;
   const Eigen::Matrix2d cov = sigma * sigma * s.normal_matrix.inverse();
   est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
-  if (calibration_.sensor.subfov == SubFovType::kQuadrant) {
-    est.subfov_class = quadrantClass(est.alpha_rad, est.beta_rad);
-  } else {
-    const Eigen::Vector3d sun = sunVectorFromAngles(est.alpha_rad, est.beta_rad);
-    double best = std::numeric_limits<double>::max();
-    for (int i = 0; i < geometry.numApertures(); ++i) {
-      const auto p = geometry.spotPx(i, sun);
-      if (p && p->squaredNorm() < best) best = p->squaredNorm(), est.subfov_class = i;
-    }
-  }
+  est.subfov_class = subFovClassOf(calibration_.sensor.subfov, geometry, est.alpha_rad, est.beta_rad);
   // Several spots that disagree beyond their noise: a wrong match or an anomaly.
   if (association->observations.size() > 1 && s.rms_px > 10.0 * sigma + 0.5) {
     est.status = status::kInconsistentSpots;

@@ -1,6 +1,5 @@
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
 
-#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -137,17 +136,7 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   const Eigen::Matrix2d scale = Eigen::Vector2d(sigma_scale_[0], sigma_scale_[1]).asDiagonal();
   const Eigen::Matrix2d cov = scale * solution->covariance * scale;
   est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
-  if (config_.subfov == SubFovType::kQuadrant) {
-    est.subfov_class = quadrantClass(est.alpha_rad, est.beta_rad);
-  } else {
-    const MaskGeometry geometry = MaskGeometry::nominalOf(config_);
-    const Eigen::Vector3d sun = sunVectorFromAngles(est.alpha_rad, est.beta_rad);
-    double best = std::numeric_limits<double>::max();
-    for (int i = 0; i < geometry.numApertures(); ++i) {
-      const auto p = geometry.spotPx(i, sun);
-      if (p && p->squaredNorm() < best) best = p->squaredNorm(), est.subfov_class = i;
-    }
-  }
+  est.subfov_class = subFovClassOf(config_.subfov, MaskGeometry::nominalOf(config_), est.alpha_rad, est.beta_rad);
   if (ambiguous) {
     est.status = status::withDetail(status::kAmbiguousAperture,
                                     "the pattern fits equally at alpha " +

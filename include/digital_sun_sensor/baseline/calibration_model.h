@@ -82,4 +82,8 @@ struct SunSolution {
 // started from the paraxial inversion of the first observation.
 SunSolution solveSun(const MaskGeometry& geometry, const std::vector<SpotObservation>& observations);
 
+// The sub-FOV class of estimated angles: the quadrant, or the aperture
+// whose spot the geometry puts nearest the detector centre (-1: none).
+int subFovClassOf(SubFovType type, const MaskGeometry& geometry, double alpha_rad, double beta_rad);
+
 }  // namespace dss
