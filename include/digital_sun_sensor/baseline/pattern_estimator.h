@@ -24,7 +24,7 @@ struct PatternEstimatorOptions {
   // the template's own error is not. Its scale per axis is measured at
   // construction on this many noisy images of the design (seeded, over
   // the field, each solved in its quadrant): RMS of error / sigma. 0: 1.
-  int sigma_images = 24;
+  int sigma_images = 64;
   std::uint64_t sigma_seed = 1;
 };
 
