@@ -285,7 +285,7 @@ TEST(Baseline, BadBagsGetClearErrors) {
   EXPECT_NE(r.output.find("/nonexistent/calib.yaml"), std::string::npos) << r.output;
   r = run("eval --data " + good + " --estimator magic:" + calib);
   EXPECT_EQ(r.code, 2);
-  EXPECT_NE(r.output.find("sscnn:MODEL or centroid:CALIB"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("sscnn:MODEL, centroid:CALIB or pattern:SENSOR_CONFIG"), std::string::npos) << r.output;
   r = run("eval --data " + good + " --estimator sscnn:" + calib);
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.output.find(calib), std::string::npos) << r.output;

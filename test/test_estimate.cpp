@@ -218,10 +218,19 @@ TEST(EstimatorFactory, ParsesSpecsAndChecksTheSensor) {
   EXPECT_EQ(makeEstimator("pattern:" + ca, &coded)->source(), "pattern");
   EXPECT_THROW(makeEstimator("pattern:" + ca, &sa), std::invalid_argument);
   // A merged-spot sensor falls back to its whole-pattern estimator.
-  const EstimatorChoice pattern = chooseEstimator("", kPatternFallback, coded);
+  EstimatorChoice pattern = chooseEstimator("", kPatternFallback, coded);
   ASSERT_TRUE(pattern.estimator) << pattern.problem;
   EXPECT_EQ(pattern.estimator->source(), "pattern");
   EXPECT_TRUE(pattern.is_fallback);
+  // The node's screen passes the hints of the images it lets through.
+  ScreenedEstimator screened(std::move(pattern.estimator), ScreenOptions{});
+  RenderOptions clean;
+  clean.noise = false;
+  const cv::Mat image = Renderer(SensorInstance::nominalOf(coded))
+                            .render(sunVectorFromAngles(degToRad(-3.0), degToRad(1.0)), 1, nullptr, clean);
+  const SunEstimate hinted = screened.estimateWithSubFovHints({image}, {quadrantClass(degToRad(-3.0), 0.1)}).at(0);
+  ASSERT_TRUE(hinted.valid) << hinted.status;
+  EXPECT_NEAR(radToDeg(hinted.alpha_rad), -3.0, 1e-3);
   // Only an estimator that can use a sub-FOV hint takes one.
   EXPECT_THROW(makeEstimator("centroid:" + calibrationPath(), &sa)->estimateWithSubFovHints({}, {}),
                std::invalid_argument);

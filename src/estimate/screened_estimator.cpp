@@ -128,6 +128,19 @@ cv::Mat ScreenedEstimator::screenedImage(const cv::Mat& image) const {
 }
 
 std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>& images) {
+  return screenAndEstimate(images, nullptr);
+}
+
+std::vector<SunEstimate> ScreenedEstimator::estimateWithSubFovHints(const std::vector<cv::Mat>& images,
+                                                                    const std::vector<int>& subfov_classes) {
+  if (subfov_classes.size() != images.size())
+    throw std::invalid_argument(std::to_string(subfov_classes.size()) + " sub-FOV hints for " +
+                                std::to_string(images.size()) + " images");
+  return screenAndEstimate(images, &subfov_classes);
+}
+
+std::vector<SunEstimate> ScreenedEstimator::screenAndEstimate(const std::vector<cv::Mat>& images,
+                                                              const std::vector<int>* hints) {
   std::vector<SunEstimate> out(images.size());
   std::vector<cv::Mat> passed;
   std::vector<std::size_t> where;
@@ -148,7 +161,14 @@ std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>&
     }
   }
   if (passed.empty()) return out;
-  std::vector<SunEstimate> estimates = inner_->estimate(passed);
+  std::vector<SunEstimate> estimates;
+  if (hints) {
+    std::vector<int> passed_hints;
+    for (std::size_t i : where) passed_hints.push_back((*hints)[i]);
+    estimates = inner_->estimateWithSubFovHints(passed, passed_hints);
+  } else {
+    estimates = inner_->estimate(passed);
+  }
   for (std::size_t k = 0; k < estimates.size(); ++k) {
     screenEstimate(&estimates[k], inner_->sensor(), options_);
     out[where[k]] = std::move(estimates[k]);

@@ -53,6 +53,9 @@ class ScreenedEstimator : public SunEstimator {
   std::string source() const override { return inner_->source(); }
   const SensorConfig& sensor() const override { return inner_->sensor(); }
   std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
+  // The hints of the images that pass go to the inner estimator.
+  std::vector<SunEstimate> estimateWithSubFovHints(const std::vector<cv::Mat>& images,
+                                                   const std::vector<int>& subfov_classes) override;
 
   // The image as the inner estimator is given it: hot pixels repaired and lit
   // groups under min_spot_px removed (what a consumer that re-reads the same
@@ -61,6 +64,8 @@ class ScreenedEstimator : public SunEstimator {
   cv::Mat screenedImage(const cv::Mat& image) const;
 
  private:
+  std::vector<SunEstimate> screenAndEstimate(const std::vector<cv::Mat>& images, const std::vector<int>* hints);
+
   std::unique_ptr<SunEstimator> inner_;
   ScreenOptions options_;
   int max_code_;
