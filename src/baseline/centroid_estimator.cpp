@@ -24,12 +24,8 @@ std::vector<SunEstimate> CentroidEstimator::estimate(const std::vector<cv::Mat>&
 
 SunEstimate CentroidEstimator::estimateOne(const cv::Mat& image, std::vector<DetectedSpot>* spots_out) const {
   SunEstimate est;
-  try {
-    input_.checkImage(image);
-  } catch (const std::invalid_argument& ex) {
-    est.status = status::withDetail(status::kBadImage, ex.what());
-    return est;
-  }
+  est.status = input_.badImageStatus(image);
+  if (!est.status.empty()) return est;
   const std::vector<DetectedSpot> spots = extractSpots(image, calibration_.extraction);
   if (spots_out) *spots_out = spots;
   if (spots.empty()) {

@@ -13,7 +13,11 @@
 namespace dss {
 
 PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEstimatorOptions& options)
-    : config_(config), input_(inputSpecFor(config)), solver_(config), design_(SensorInstance::nominalOf(config)) {
+    : config_(config),
+      input_(inputSpecFor(config)),
+      solver_(config),
+      design_(SensorInstance::nominalOf(config)),
+      geometry_(MaskGeometry::nominalOf(config)) {
   const Eigen::Vector2d half(degToRad(config.fov.alpha_max_deg + kFieldMarginDeg),
                              degToRad(config.fov.beta_max_deg + kFieldMarginDeg));
   field_ = {-half, half};
@@ -96,12 +100,8 @@ std::vector<SunEstimate> PatternEstimator::estimateWithSubFovHints(const std::ve
 
 SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window) const {
   SunEstimate est;
-  try {
-    input_.checkImage(image);
-  } catch (const std::invalid_argument& ex) {
-    est.status = status::withDetail(status::kBadImage, ex.what());
-    return est;
-  }
+  est.status = input_.badImageStatus(image);
+  if (!est.status.empty()) return est;
   if (cv::countNonZero(image) == 0) {
     est.status = status::kNoSun;
     return est;
@@ -136,7 +136,7 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   const Eigen::Matrix2d scale = Eigen::Vector2d(sigma_scale_[0], sigma_scale_[1]).asDiagonal();
   const Eigen::Matrix2d cov = scale * solution->covariance * scale;
   est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
-  est.subfov_class = subFovClassOf(config_.subfov, MaskGeometry::nominalOf(config_), est.alpha_rad, est.beta_rad);
+  est.subfov_class = subFovClassOf(config_.subfov, geometry_, est.alpha_rad, est.beta_rad);
   if (ambiguous) {
     est.status = status::withDetail(status::kAmbiguousAperture,
                                     "the pattern fits equally at alpha " +

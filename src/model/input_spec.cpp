@@ -4,7 +4,18 @@
 #include <stdexcept>
 #include <string>
 
+#include "digital_sun_sensor/common/estimate_status.h"
+
 namespace dss {
+
+std::string InputSpec::badImageStatus(const cv::Mat& image) const {
+  try {
+    checkImage(image);
+  } catch (const std::invalid_argument& ex) {
+    return status::withDetail(status::kBadImage, ex.what());
+  }
+  return {};
+}
 
 void InputSpec::checkImage(const cv::Mat& image) const {
   if (image.empty()) throw std::invalid_argument("empty image");

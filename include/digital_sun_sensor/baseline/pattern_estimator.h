@@ -12,6 +12,7 @@
 #include <memory>
 #include <optional>
 
+#include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/baseline/pattern_solve.h"
 #include "digital_sun_sensor/common/sun_estimate.h"
 #include "digital_sun_sensor/model/input_spec.h"
@@ -62,7 +63,8 @@ class PatternEstimator : public SunEstimator {
   SensorConfig config_;
   InputSpec input_;
   PatternSolver solver_;
-  Renderer design_;  // the nominal design, for alias decisions
+  Renderer design_;        // the nominal design, for alias decisions
+  MaskGeometry geometry_;  // the nominal design, for the sub-FOV class
   AngleWindow field_;
   std::array<double, 2> sigma_scale_{1.0, 1.0};
 };

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <opencv2/core.hpp>
+#include <string>
 #include <vector>
 
 #include "digital_sun_sensor/sim/sensor_config.h"
@@ -20,6 +21,8 @@ struct InputSpec {
 
   // Throws std::invalid_argument naming what does not match.
   void checkImage(const cv::Mat& image) const;
+  // The same as an estimate's status: "bad_image: <what>", or empty.
+  std::string badImageStatus(const cv::Mat& image) const;
 };
 
 // A pixel that can be a site: above the spec's threshold.
