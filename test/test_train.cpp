@@ -222,8 +222,21 @@ TEST(Train, ZeroEpochsWritesTheModelAsCreated) {
   EXPECT_GT(inputEnvelopeOf(model.meta).max_sites, 0);
   EXPECT_NE(model.meta.metrics_yaml.find("validation_alpha_mean_deg"), std::string::npos);
   EXPECT_NE(model.meta.training_yaml.find("epochs_completed: 0"), std::string::npos) << model.meta.training_yaml;
-  options.epochs = -1;
+  options.epochs = -2;
   EXPECT_THROW(options.validate(), std::invalid_argument);
+}
+
+// epochs "auto" takes the head's schedule: the classic heads' long one, the
+// geometric head's two epochs.
+TEST(Train, AutoEpochsFollowTheHead) {
+  TrainingSet train{tinySet().spec()}, validation{tinySet().spec()};
+  tinySet().split(0.2, 1, train, validation);
+  TrainOptions options = tinyOptions();
+  options.epochs = kEpochsAuto;
+  std::atomic<bool> stop{true};
+  EXPECT_EQ(Trainer(tinySensor(), train, validation, options).run({}, stop).last.epochs, kClassicHeadEpochs);
+  options.head = "geometric";
+  EXPECT_EQ(Trainer(tinySensor(), train, validation, options).run({}, stop).last.epochs, kGeometricHeadEpochs);
 }
 
 // --init: training starts from the given model's weights, which must suit
@@ -587,7 +600,7 @@ TEST(SigmaCalibration, RefitsOnlyASigmaThatIsTooSmall) {
   model.setConstantSigma(1.0, 1.0);  // radians: every error within 1 sigma
   EXPECT_FALSE(calibrateSigmaWhereTooSmall(model, tinySet(), 160, 0.5));
   EXPECT_NEAR((*model.constantSigma())[0], 1.0, 1e-6);  // as set (the head holds it in float)
-  model.setConstantSigma(1e-9, 1e-9);  // none within 1 sigma
+  model.setConstantSigma(1e-9, 1e-9);                   // none within 1 sigma
   const std::optional<SigmaCalibration> c = calibrateSigmaWhereTooSmall(model, tinySet(), 160, 0.5);
   ASSERT_TRUE(c);
   EXPECT_LT(c->alpha_before.within[0], 0.5);

@@ -59,8 +59,10 @@ int runTrain(int argc, char** argv) {
            false, false},
           {"epochs", "N",
            "epochs of the learning-rate schedule (0: write the model as created, validated, with its sigma and "
-           "input envelope fitted)",
-           std::to_string(defaults.epochs), false, false},
+           "input envelope fitted; auto: " +
+               std::to_string(kGeometricHeadEpochs) + " with the geometric head, " +
+               std::to_string(kClassicHeadEpochs) + " with the classic heads)",
+           "auto", false, false},
           {"batch", "B", "images per step", std::to_string(defaults.batch_size), false, false},
           {"lr", "LR", "peak learning rate (AdamW)", defaultText(defaults.learning_rate), false, false},
           {"weight-decay", "W", "AdamW decoupled weight decay", defaultText(defaults.weight_decay), false, false},
@@ -93,7 +95,7 @@ int runTrain(int argc, char** argv) {
   options.feature_corrections = args.get("feature-corrections");
   options.lattice_phase = args.get("lattice-phase");
   options.head = args.get("head");
-  options.epochs = static_cast<int>(args.getInt("epochs"));
+  if (args.get("epochs") != "auto") options.epochs = static_cast<int>(args.getInt("epochs"));
   options.batch_size = static_cast<int>(args.getInt("batch"));
   options.learning_rate = args.getDouble("lr");
   options.weight_decay = args.getDouble("weight-decay");

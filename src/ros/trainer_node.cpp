@@ -34,7 +34,14 @@ TrainOptions optionsFromParams(const ros::NodeHandle& pnh) {
   o.lattice_phase = pnh.param<std::string>("lattice_phase", "");
   o.head = pnh.param<std::string>("head", "");
   o.batch_size = pnh.param("batch_size", o.batch_size);
-  o.epochs = pnh.param("epochs", o.epochs);
+  // "auto" (or absent): the head's (kGeometricHeadEpochs, kClassicHeadEpochs).
+  XmlRpc::XmlRpcValue epochs;
+  if (pnh.getParam("epochs", epochs)) {
+    if (epochs.getType() == XmlRpc::XmlRpcValue::TypeInt)
+      o.epochs = static_cast<int>(epochs);
+    else if (epochs.getType() != XmlRpc::XmlRpcValue::TypeString || static_cast<std::string>(epochs) != "auto")
+      throw std::invalid_argument("~epochs must be an integer >= 0 or \"auto\"");
+  }
   o.patience_epochs = pnh.param("patience_epochs", o.patience_epochs);
   o.learning_rate = pnh.param("learning_rate", o.learning_rate);
   o.weight_decay = pnh.param("weight_decay", o.weight_decay);

@@ -68,7 +68,7 @@ void TrainOptions::validate() const {
     if (!ok) throw std::invalid_argument("training option " + what);
   };
   require(batch_size >= 1, "batch_size must be >= 1");
-  require(epochs >= 0, "epochs must be >= 0");
+  require(epochs >= 0 || epochs == kEpochsAuto, "epochs must be >= 0 (or kEpochsAuto)");
   require(patience_epochs >= 0, "patience_epochs must be >= 0");
   require(learning_rate > 0 && std::isfinite(learning_rate), "learning_rate must be positive");
   require(warmup_fraction >= 0 && warmup_fraction < 1, "warmup_fraction must be in [0, 1)");
@@ -160,6 +160,8 @@ Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOp
     const FreshModelDesign design = freshModelDesign(sensor, options);
     model = createModel(sensor, design.arch, deriveSeed(options.seed, 0xA7C4), design.head);
   }
+  if (options.epochs == kEpochsAuto)
+    options.epochs = model.meta.arch.geometric_head ? kGeometricHeadEpochs : kClassicHeadEpochs;
   model.net->train();
   optimizer = std::make_unique<torch::optim::AdamW>(
       model.net->parameters(), torch::optim::AdamWOptions(options.learning_rate).weight_decay(options.weight_decay));

@@ -1,0 +1,91 @@
+#!/usr/bin/env bash
+# README's "Your own mask" table (details: docs/results/irregular_masks.md).
+#
+# Each mask is drawn by `dss mask` from a fixed seed within its own detector,
+# height, readout and field; it gets training images, a fresh-seed test bag,
+# the baseline (`dss calibrate` on the first 1000 training images) and a model
+# trained by `dss train` with its defaults (the geometric head); both are
+# evaluated on the same 2000 test images, with the readout's Cramer-Rao bound.
+#
+#   MASKS="A B D E" scripts/irregular_masks.sh        everything, then the table
+#   MASKS="A B D E" scripts/irregular_masks.sh table  the table from what is there
+# Data in $DATA_DIR (default .ws/irregular_data); every file that exists is
+# reused, so a cut run continues where it stopped. TRAIN_OPTIONS (environment)
+# adds options to `dss train` (default: none, the defaults).
+set -euo pipefail
+source "$(dirname "$0")/dss_env.sh"
+MASKS="${MASKS:-A B D E}"
+DATA="${DATA_DIR:-$WS/irregular_data}"
+read -r -a TRAIN_OPTIONS <<<"${TRAIN_OPTIONS:-}"
+mkdir -p "$DATA"
+cd "$DATA"
+log() { echo "[irregular_masks] $*" >&2; }
+BASE="$ROOT/config/sensors/thesis_sa.yaml"
+
+# draw MASK: the mask's config, seeds (train, test) and training-image count.
+draw() {
+  local m=$1 sets=() draw_opts=()
+  case "$m" in
+    A) sets=(detector.width_px=640 detector.height_px=512 detector.pitch_um=2.2 mask.height_mm=2.5
+         detector_noise.bit_depth=10 threshold.level_fraction=0.5 fov.alpha_max_deg=8 fov.beta_max_deg=8)
+       draw_opts=(--apertures 5 --seed 11) SEEDS=(9101 9102) COUNT=24000 ;;
+    B) sets=(detector.pitch_um=3.45 mask.height_mm=4.0 fov.alpha_max_deg=6 fov.beta_max_deg=6)
+       draw_opts=(--diameter-um 60 --apertures 12 --seed 23 --name irregular_12) SEEDS=(9201 9202) COUNT=12000 ;;
+    # D: three apertures of different sizes, two whole spots everywhere.
+    D) sets=(detector.width_px=640 detector.height_px=480 detector.pitch_um=3.0 mask.height_mm=3.0
+         detector_noise.bit_depth=12 threshold.level_fraction=0.7 fov.alpha_max_deg=9 fov.beta_max_deg=9)
+       draw_opts=(--diameter-um 110 --diameter-spread 0.3 --apertures 3 --min-whole-spots 2 --seed 41
+         --name irregular_3_sized) SEEDS=(9401 9402) COUNT=12000 ;;
+    # E: eight apertures on a coarse-pitch detector, high above it.
+    E) sets=(detector.width_px=752 detector.height_px=480 detector.pitch_um=6.0 mask.height_mm=6.0
+         threshold.level_fraction=0.6 fov.alpha_max_deg=5 fov.beta_max_deg=5)
+       draw_opts=(--diameter-um 150 --apertures 8 --seed 53 --name irregular_8) SEEDS=(9501 9502) COUNT=12000 ;;
+    *) echo "irregular_masks.sh: unknown mask '$m' (A, B, D, E)" >&2; exit 2 ;;
+  esac
+  local s set_args=()
+  for s in "${sets[@]}"; do set_args+=(--set "$s"); done
+  [ -f $m.yaml ] || "$DSS" mask --sensor "$BASE" "${set_args[@]}" "${draw_opts[@]}" --out $m.yaml >$m.mask.json
+}
+
+run_mask() {
+  local m=$1
+  draw $m
+  [ -f $m.train.bag ] || { log "$m: $COUNT training images"; "$DSS" generate --sensor $m.yaml --count $COUNT \
+    --seed ${SEEDS[0]} --out $m.train.bag >/dev/null; }
+  [ -f $m.test.bag ] || "$DSS" generate --sensor $m.yaml --count 2000 --seed ${SEEDS[1]} --out $m.test.bag >/dev/null
+  [ -f $m.calib.yaml ] || "$DSS" calibrate --data $m.train.bag --max-images 1000 --out $m.calib.yaml >/dev/null
+  if [ ! -f $m.dssmodel ]; then
+    log "$m: training (log $m.train.log)"
+    local start=$SECONDS
+    "$DSS" train --data $m.train.bag "${TRAIN_OPTIONS[@]}" --checkpoint $m.ckpt --out $m.dssmodel >$m.train.log 2>&1
+    echo $((SECONDS - start)) >$m.train_s
+  fi
+  [ -f $m.sscnn.json ] || "$DSS" eval --data $m.test.bag --estimator sscnn:$m.dssmodel --max-images 2000 \
+    --crlb-samples 200 --csv $m.sscnn.csv | tail -1 >$m.sscnn.json
+  [ -f $m.centroid.json ] || "$DSS" eval --data $m.test.bag --estimator centroid:$m.calib.yaml --max-images 2000 \
+    --crlb-samples 200 --csv $m.centroid.csv | tail -1 >$m.centroid.json
+  log "$m done"
+}
+
+table() {
+  /usr/bin/python3 - $MASKS <<'PY'
+import json, os, sys
+print("| mask | SSCNN mean α / β (deg) | max α / β | valid | readout CRLB ratio | within 1σ α / β | baseline mean α / β | baseline ratio | training |")
+print("|---|---|---|---|---|---|---|---|---|")
+for m in sys.argv[1:]:
+    if not (os.path.exists(m + ".sscnn.json") and os.path.exists(m + ".centroid.json")):
+        print(f"| {m} | (not run) |"); continue
+    s, c = (json.load(open(f"{m}.{k}.json")) for k in ("sscnn", "centroid"))
+    t = open(m + ".train_s").read().strip() if os.path.exists(m + ".train_s") else "?"
+    t = f"{int(t) / 60:.1f} min" if t.isdigit() else t
+    print(f"| {m} | {s['alpha_mean_deg']:.6f} / {s['beta_mean_deg']:.6f} | {s['alpha_max_deg']:.4f} / "
+          f"{s['beta_max_deg']:.4f} | {100 * s['valid_rate']:.2f} % | {s['readout_crlb_ratio']:.2f} | "
+          f"{100 * s['alpha_within_1sigma']:.0f} / {100 * s['beta_within_1sigma']:.0f} % | "
+          f"{c['alpha_mean_deg']:.6f} / {c['beta_mean_deg']:.6f} | {c['readout_crlb_ratio']:.2f} | {t} |")
+PY
+}
+
+if [ "${1:-}" != table ]; then
+  for m in $MASKS; do run_mask $m; done
+fi
+table
