@@ -21,6 +21,10 @@ int runMask(int argc, char** argv) {
            defaultText(defaults.min_separation_spots), false, false},
           {"min-whole-spots", "N", "spots wholly on the detector at every attitude of the field",
            std::to_string(defaults.min_whole_spots), false, false},
+          {"min-lit-spots", "N",
+           "of those, spots above the threshold in the design's noise-free images over the field (rendered, "
+           "seconds per draw; 0: not checked)",
+           std::to_string(defaults.min_lit_spots), false, false},
           {"name", "NAME", "sensor name (default: BASE_random_SEED)", "", false, false},
           {"out", "YAML", "sensor config to write", "", true, false},
       });
@@ -36,6 +40,7 @@ int runMask(int argc, char** argv) {
   options.diameter_spread = args.getDouble("diameter-spread");
   options.min_separation_spots = args.getDouble("min-separation");
   options.min_whole_spots = static_cast<int>(args.getInt("min-whole-spots"));
+  options.min_lit_spots = static_cast<int>(args.getInt("min-lit-spots"));
   const auto seed = static_cast<std::uint64_t>(args.getInt("seed"));
   const RandomMask mask = drawRandomMask(base, options, seed, args.get("name"));
   // The written config must read back as itself (the YAML reader validates it).
@@ -45,8 +50,8 @@ int runMask(int argc, char** argv) {
   writeFileAtomic(args.get("out"), yaml);
   std::cout << "{\"sensor\":\"" << mask.config.name << "\",\"apertures\":" << mask.config.mask.apertures.size()
             << ",\"spot_diameter_um\":" << mask.spot_diameter_um << ",\"min_spacing_um\":" << mask.min_spacing_um
-            << ",\"min_whole_spots\":" << mask.min_whole_spots << ",\"draws\":" << mask.draws << ",\"out\":\""
-            << args.get("out") << "\"}" << std::endl;
+            << ",\"min_whole_spots\":" << mask.min_whole_spots << ",\"min_lit_spots\":" << mask.min_lit_spots
+            << ",\"draws\":" << mask.draws << ",\"out\":\"" << args.get("out") << "\"}" << std::endl;
   return 0;
 }
 

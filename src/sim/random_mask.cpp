@@ -8,6 +8,8 @@
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
+#include "digital_sun_sensor/sim/sensor_instance.h"
 
 namespace dss {
 namespace {
@@ -22,16 +24,48 @@ double meanWavelengthUm(const OpticsConfig& optics) {
   return weight > 0.0 ? sum / weight : 0.55;
 }
 
-// Attitudes on which the whole-spot count is checked: a 9 x 9 grid over the
-// field, its corners included.
-std::vector<Eigen::Vector3d> fieldGrid(const FieldOfViewConfig& fov) {
-  constexpr int kNodes = 9;
+// Attitudes on which the spot counts are checked: a nodes x nodes grid over
+// the field, its corners included.
+std::vector<Eigen::Vector3d> fieldGrid(const FieldOfViewConfig& fov, int nodes) {
   std::vector<Eigen::Vector3d> suns;
-  for (int i = 0; i < kNodes; ++i)
-    for (int j = 0; j < kNodes; ++j)
-      suns.push_back(sunVectorFromAngles(degToRad(fov.alpha_max_deg * (2.0 * i / (kNodes - 1) - 1.0)),
-                                         degToRad(fov.beta_max_deg * (2.0 * j / (kNodes - 1) - 1.0))));
+  for (int i = 0; i < nodes; ++i)
+    for (int j = 0; j < nodes; ++j)
+      suns.push_back(sunVectorFromAngles(degToRad(fov.alpha_max_deg * (2.0 * i / (nodes - 1) - 1.0)),
+                                         degToRad(fov.beta_max_deg * (2.0 * j / (nodes - 1) - 1.0))));
   return suns;
+}
+
+// Fewest whole spots that show light (a few lit pixels within a spot radius
+// of their centre) in the design's noise-free, thresholded images.
+int fewestLitSpots(const SensorConfig& config, const std::vector<Eigen::Vector3d>& suns, double spot_radius_um) {
+  constexpr int kMinLitPixels = 4;
+  const Renderer renderer(SensorInstance::nominalOf(config));
+  RenderOptions quiet;
+  quiet.noise = false;
+  quiet.anomalies = false;
+  const double pitch = config.detector.pitch_um, radius_px = spot_radius_um / pitch;
+  const double half_w = 0.5 * config.detector.width_px - radius_px,
+               half_h = 0.5 * config.detector.height_px - radius_px;
+  int fewest = std::numeric_limits<int>::max();
+  for (const auto& sun : suns) {
+    ImageTruth truth;
+    cv::Mat image;
+    renderer.render(sun, 1, &truth, quiet).convertTo(image, CV_32F);
+    int lit_spots = 0;
+    for (const auto& spot : truth.spots) {
+      if (!spot.on_detector || std::abs(spot.x_px) >= half_w || std::abs(spot.y_px) >= half_h) continue;
+      const double cx = spot.x_px + 0.5 * config.detector.width_px, cy = spot.y_px + 0.5 * config.detector.height_px;
+      int lit = 0;
+      for (int y = std::max(0, static_cast<int>(cy - radius_px));
+           y <= std::min(image.rows - 1, static_cast<int>(cy + radius_px)); ++y)
+        for (int x = std::max(0, static_cast<int>(cx - radius_px));
+             x <= std::min(image.cols - 1, static_cast<int>(cx + radius_px)); ++x)
+          if (image.at<float>(y, x) > 0.0f && std::hypot(x + 0.5 - cx, y + 0.5 - cy) <= radius_px) ++lit;
+      if (lit >= kMinLitPixels) ++lit_spots;
+    }
+    fewest = std::min(fewest, lit_spots);
+  }
+  return fewest;
 }
 
 // Fewest spots wholly on the detector (centre at least a spot radius inside
@@ -71,6 +105,9 @@ RandomMask drawRandomMask(const SensorConfig& base, const RandomMaskOptions& opt
   if (options.min_whole_spots < 1 || options.min_whole_spots > options.apertures)
     throw std::invalid_argument("random mask: min_whole_spots must be 1..apertures (" +
                                 std::to_string(options.apertures) + ")");
+  if (options.min_lit_spots < 0 || options.min_lit_spots > options.min_whole_spots)
+    throw std::invalid_argument("random mask: min_lit_spots must be 0..min_whole_spots (" +
+                                std::to_string(options.min_whole_spots) + ")");
   if (base.mask.apertures.empty() && !(options.diameter_um > 0.0))
     throw std::invalid_argument("random mask: the base config has no aperture; give a diameter");
   const double diameter_um =
@@ -85,9 +122,12 @@ RandomMask drawRandomMask(const SensorConfig& base, const RandomMaskOptions& opt
       0.5 * base.detector.width_px * base.detector.pitch_um + height_um * std::tan(degToRad(base.fov.alpha_max_deg));
   const double reach_y_um =
       0.5 * base.detector.height_px * base.detector.pitch_um + height_um * std::tan(degToRad(base.fov.beta_max_deg));
-  const auto suns = fieldGrid(base.fov);
+  const auto suns = fieldGrid(base.fov, 9);
+  const auto rendered_suns = fieldGrid(base.fov, 5);
   Rng rng(deriveSeed(seed, 0x6d61736bULL));
   constexpr int kMaxDraws = 20000;
+  constexpr int kMaxLitChecks = 20;  // renders cost seconds per draw
+  int lit_checks = 0, fewest_lit_seen = -1;
   for (int draw = 1; draw <= kMaxDraws; ++draw) {
     SensorConfig config = base;
     config.mask.apertures.clear();
@@ -113,6 +153,19 @@ RandomMask drawRandomMask(const SensorConfig& base, const RandomMaskOptions& opt
     if (static_cast<int>(config.mask.apertures.size()) < options.apertures) continue;
     const int whole = fewestWholeSpots(config, suns, 0.5 * out.spot_diameter_um);
     if (whole < options.min_whole_spots) continue;
+    if (options.min_lit_spots > 0) {
+      out.min_lit_spots = fewestLitSpots(config, rendered_suns, 0.5 * out.spot_diameter_um);
+      fewest_lit_seen = std::max(fewest_lit_seen, out.min_lit_spots);
+      if (out.min_lit_spots < options.min_lit_spots) {
+        if (++lit_checks < kMaxLitChecks) continue;
+        throw std::invalid_argument(
+            "random mask: none of " + std::to_string(kMaxLitChecks) + " draws with " +
+            std::to_string(options.min_whole_spots) + " whole spots kept " + std::to_string(options.min_lit_spots) +
+            " of them lit over the field (at best " + std::to_string(fewest_lit_seen) +
+            "): the threshold, relative to the brightest pixel, leaves the dimmer spots dark (apertures alike, a "
+            "lower threshold or more whole spots)");
+      }
+    }
     config.name = name.empty() ? base.name + "_random_" + std::to_string(seed) : name;
     config.source_path.clear();
     out.config = config;

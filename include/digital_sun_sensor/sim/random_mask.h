@@ -16,7 +16,9 @@ struct RandomMaskOptions {
   // (or its rectangle's equivalent circle).
   double diameter_um = 0.0;
   // Diameters drawn uniformly within +-this fraction of diameter_um (0: all
-  // alike; above ~0.2 the spots' sizes tell the apertures apart).
+  // alike). Spots of different sizes differ in peak irradiance (a Fresnel
+  // ring or a bright core), and a threshold relative to the brightest pixel
+  // may leave only the brightest: see min_lit_spots.
   double diameter_spread = 0.0;
   // Spot centres at least this many spot diameters apart (spots that can be
   // told apart; the spot diameter is the aperture's plus its diffraction and
@@ -25,6 +27,10 @@ struct RandomMaskOptions {
   // At every attitude of the field (checked on a grid), at least this many
   // spots lie wholly on the detector.
   int min_whole_spots = 2;
+  // At every attitude of a coarser grid, at least this many whole spots
+  // show light in the design's noise-free, thresholded image (rendered:
+  // seconds per draw checked). 0: not checked.
+  int min_lit_spots = 0;
 };
 
 struct RandomMask {
@@ -32,6 +38,7 @@ struct RandomMask {
   double spot_diameter_um = 0.0;
   double min_spacing_um = 0.0;
   int min_whole_spots = 0;  // fewest whole spots over the field's grid
+  int min_lit_spots = -1;   // fewest lit whole spots over the rendered grid (-1: not checked)
   int draws = 0;            // masks drawn until one met the options
 };
 
