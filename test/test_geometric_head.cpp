@@ -319,6 +319,50 @@ TEST(GeometricHead, SpotCutByTheEdgeIsReadAtItsCentre) {
   EXPECT_GT(worst_plain_um, 3.0) << "the cut should pull the plain centroid inward";
 }
 
+// Three apertures of different sizes (docs/results/irregular_masks.md, mask
+// D): the relative threshold may leave one spot lit, and nothing in the
+// image says which aperture made it; the solve says so. With apertures alike
+// a dark spot where the geometry puts one rules a hypothesis out, and with
+// two spots lit the association is known.
+TEST(GeometricHead, LoneSpotOfAperturesOfDifferentSizesIsAmbiguous) {
+  const SensorConfig base = loadSensorConfig(
+      DSS_SOURCE_DIR "/config/sensors/thesis_sa.yaml",
+      {"detector.width_px=640", "detector.height_px=480", "detector.pitch_um=3.0", "mask.height_mm=3.0",
+       "threshold.level_fraction=0.7", "fov.alpha_max_deg=9", "fov.beta_max_deg=9"});
+  RandomMaskOptions mask;
+  mask.apertures = 3;
+  mask.diameter_um = 110.0;
+  for (const double spread : {0.3, 0.0}) {
+    mask.diameter_spread = spread;
+    const SensorConfig config = drawRandomMask(base, mask, 41).config;
+    const GeometryDesign design = geometryDesignOf(config);
+    SensorGeometry geometry(static_cast<int>(design.apertures_um.size()), design.groupCount());
+    geometry->setDesign(design);
+    const double alpha = degToRad(6.647), beta = degToRad(-0.213);
+    const auto spots = geometry->spotsUm(torch::tensor({alpha, beta}, torch::kFloat64).view({1, 2}));
+    const double half_w = 0.5 * 640 * 3.0 - 100.0, half_h = 0.5 * 480 * 3.0 - 100.0;
+    Sites sites;
+    int whole = 0;
+    for (int k = 0; k < spots.size(1); ++k) {
+      const Eigen::Vector2d centre(spots[0][k][0].item<double>(), spots[0][k][1].item<double>());
+      if (std::abs(centre.x()) > half_w || std::abs(centre.y()) > half_h) continue;
+      if (whole++ == 0) addSpot(sites, centre, 1.0, config, 0);  // image 0: the first whole spot alone
+      addSpot(sites, centre, 1.0, config, 1);                     // image 1: every whole spot
+    }
+    ASSERT_GE(whole, 2) << "spread " << spread;
+    auto options = optionsFor(config);
+    options.gate_um = geometricGateUm(config, design);
+    options.search_reference = true;
+    const auto solution =
+        solveGeometry(*geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight),
+                      torch::tensor(sites.index), 2, torch::zeros({2, 2}, torch::kFloat64), options);
+    EXPECT_EQ(solution.lone_spot_ambiguous[0].item<bool>(), spread > 0.0) << "spread " << spread;
+    EXPECT_FALSE(solution.lone_spot_ambiguous[1].item<bool>()) << "spread " << spread;
+    EXPECT_NEAR(solution.angles_rad[1][0].item<double>(), alpha, 1e-9);
+    EXPECT_NEAR(solution.angles_rad[1][1].item<double>(), beta, 1e-9);
+  }
+}
+
 TEST(GeometricHead, OverlappingSpotsReadAsOneGroup) {
   // Two apertures 30 um apart (their spots merge) and one apart: grouped,
   // the merged light's centroid is the flux-weighted mean of its members'.

@@ -30,6 +30,12 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
     code_margin = out.code_margin.detach().to(torch::kDouble).contiguous();
     margin.emplace(code_margin.accessor<double, 1>());
   }
+  torch::Tensor lone_spot;
+  std::optional<torch::TensorAccessor<bool, 1>> lone;
+  if (out.lone_spot_ambiguous.defined()) {
+    lone_spot = out.lone_spot_ambiguous.to(torch::kBool).contiguous();
+    lone.emplace(lone_spot.accessor<bool, 1>());
+  }
   // With an inference symmetry, each image's mirror images are consecutive
   // rows (encodeImages): their angles are mapped back and averaged, the
   // correction fitted to that average is applied to it, and the class is the
@@ -55,6 +61,7 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
       alpha_variance += gva / group;
       beta_variance += gvb / group;
       if (margin) p.code_margin = std::min(p.code_margin, (*margin)[i + g]);
+      if (lone) p.lone_spot_ambiguous = p.lone_spot_ambiguous || (*lone)[i + g];
       if (residual) p.spot_mismatch = std::max(p.spot_mismatch, (*residual)[i + g] / meta.mismatch_level);
     }
     const auto bias = correction.bias(alpha, beta);

@@ -248,6 +248,7 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
   auto read = torch::zeros({batch, groups}, torch::kBool);
   auto jac = torch::zeros({batch, groups, 2, 2}, kDouble);
   auto inverse = torch::zeros({batch, 2, 2}, kDouble);
+  auto lone = torch::zeros({batch}, torch::kBool);
   {
     auto a = angles.accessor<double, 2>();
     auto s = spot.accessor<std::int64_t, 1>();
@@ -256,11 +257,13 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
     auto r = read.accessor<bool, 2>();
     auto j = jac.accessor<double, 4>();
     auto inv = inverse.accessor<double, 3>();
+    auto ambiguous = lone.accessor<bool, 1>();
     for (std::int64_t b = 0; b < batch; ++b) {
       const auto& image_sites = per_image[static_cast<std::size_t>(b)];
       const auto solution = geometric::solveImage(design, image_sites, Eigen::Vector2d(ref[b][0], ref[b][1]), plain);
       a[b][0] = solution.angles_rad.x();
       a[b][1] = solution.angles_rad.y();
+      ambiguous[b] = solution.lone_spot_ambiguous;
       for (std::size_t k = 0; k < image_sites.size(); ++k) {
         const std::int64_t row = rows[static_cast<std::size_t>(b)][k];
         const int g = solution.group[k];
@@ -293,6 +296,7 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
   const auto gradient = (solve_w.view({batch, groups, 1, 1}) * jac.transpose(2, 3).matmul(residual)).sum(1);
   GeometricSolution out;
   out.angles_rad = angles + inverse.matmul(gradient).squeeze(2);
+  out.lone_spot_ambiguous = lone;
   torch::NoGradGuard no_grad;
   out.log_variance = torch::log(
       torch::stack({inverse.select(1, 0).select(1, 0), inverse.select(1, 1).select(1, 1)}, 1).clamp_min(1e-300));

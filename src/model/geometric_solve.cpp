@@ -7,6 +7,7 @@
 #include <utility>
 #include <vector>
 
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss::geometric {
@@ -190,8 +191,14 @@ Eigen::Vector2d refine(const Design& design, const std::vector<Site>& sites, Eig
 // tenth of the mean light of the spots that hold some). A spot centred just
 // inside an edge still shows about half its light; the rule is relative to a
 // spot's light, not the image's, since a spot of a 49-aperture mask holds 2 %.
-double score(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles,
-             const Options& options) {
+struct Score {
+  double explained = 0.0;  // fraction of the light within half a gate of a spot
+  double dark = 0.0;       // fraction of the expected spots that are dark
+  double total() const { return explained - dark; }
+};
+
+Score score(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles,
+            const Options& options) {
   const Reading r = readSpots(design, sites, angles, 0.5 * options.gate_um, options, false);
   double total = 0.0, explained = 0.0;
   int lit = 0;
@@ -210,7 +217,14 @@ double score(const Design& design, const std::vector<Site>& sites, const Eigen::
     ++expected;
     if (!(r.sum[g] >= dark_below)) ++dark;
   }
-  return explained / std::max(total, 1e-30) - static_cast<double>(dark) / std::max(expected, 1);
+  return {explained / std::max(total, 1e-30), static_cast<double>(dark) / std::max(expected, 1)};
+}
+
+// Apertures whose fluxes differ by more than a few percent.
+bool aperturesDiffer(const Design& design) {
+  if (design.flux.empty()) return false;
+  const auto [least, most] = std::minmax_element(design.flux.begin(), design.flux.end());
+  return *most > 1.05 * *least;
 }
 
 // Angles that put group g's spot at `target` (Newton from normal incidence).
@@ -245,6 +259,7 @@ std::vector<Eigen::Vector2d> groupSpots(const Design& design, const Eigen::Vecto
 ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& reference_rad,
                          const Options& options) {
   Eigen::Vector2d angles = clampAngles(reference_rad);
+  bool out_lone_spot_ambiguous = false;
   if (options.search && !sites.empty()) {
     // Hypotheses: the reference, and per group the angles that put its spot
     // on the brightest site (the first of equals), each refined and scored.
@@ -256,7 +271,7 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
     std::size_t anchor = 0;
     for (std::size_t i = 1; i < sites.size(); ++i)
       if (sites[i].weight > sites[anchor].weight) anchor = i;
-    std::vector<std::pair<Eigen::Vector2d, double>> candidates;
+    std::vector<std::pair<Eigen::Vector2d, Score>> candidates;
     const Eigen::Vector2d start = refine(design, sites, angles, options);
     candidates.emplace_back(start, score(design, sites, start, options));
     for (int g = 0; g < design.groups; ++g) {
@@ -264,21 +279,32 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
       candidates.emplace_back(candidate, score(design, sites, candidate, options));
     }
     double best = -std::numeric_limits<double>::infinity();
-    for (const auto& c : candidates) best = std::max(best, c.second);
+    for (const auto& c : candidates) best = std::max(best, c.second.total());
     const Eigen::Vector2d reference = angles;
     double nearest = std::numeric_limits<double>::infinity();
+    Score chosen;
     for (const auto& c : candidates) {
       const double distance = (c.first - reference).squaredNorm();
-      if (c.second >= best - kTieScore && distance < nearest) {
+      if (c.second.total() >= best - kTieScore && distance < nearest) {
         nearest = distance;
         angles = c.first;  // refined already
+        chosen = c.second;
       }
+    }
+    if (design.groups > 1 && aperturesDiffer(design)) {
+      const Reading r = readSpots(design, sites, angles, options.gate_um, options);
+      const auto lit = std::count_if(r.sum.begin(), r.sum.end(), [](double s) { return s > 0.0; });
+      const double distinct = degToRad(ImageSolution::kDistinctDeg);
+      for (const auto& c : candidates)
+        out_lone_spot_ambiguous |=
+            lit == 1 && (c.first - angles).norm() > distinct && c.second.explained >= chosen.explained - kTieScore;
     }
   } else {
     angles = refine(design, sites, angles, options);
   }
   ImageSolution out;
   out.angles_rad = angles;
+  out.lone_spot_ambiguous = out_lone_spot_ambiguous;
   const Reading r = readSpots(design, sites, angles, options.gate_um, options);
   out.group.resize(sites.size());
   for (std::size_t i = 0; i < sites.size(); ++i)

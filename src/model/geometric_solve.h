@@ -50,6 +50,13 @@ struct ImageSolution {
   std::vector<double> weight;             // per group: its weight in the solve (0: not read)
   std::vector<Eigen::Matrix2d> jacobian;  // per group: d(spot um)/d(angles) at the solution
   Eigen::Matrix2d normal_inverse = Eigen::Matrix2d::Zero();
+  // The search read one spot, and a hypothesis at least kDistinctDeg away
+  // that puts it on another aperture explains the light as well, on a mask
+  // whose apertures differ in size: only dark spots spoke against it, and a
+  // threshold relative to the brightest pixel leaves the spots of dimmer
+  // apertures dark. Which aperture made the spot is not known.
+  bool lone_spot_ambiguous = false;
+  static constexpr double kDistinctDeg = 0.1;
 };
 
 // The spots as the sites show them at given angles: per site its group and

@@ -107,6 +107,7 @@ void SscnnNetImpl::solveAngles(SscnnOutput& out, const torch::Tensor& w, const t
   out.spots_read = solution.spots_read;
   out.solve_residual_um = solution.residual_um;
   out.solve_residual_per_dof = solution.residual_per_dof;
+  out.lone_spot_ambiguous = solution.lone_spot_ambiguous;
   out.solve_site_um = site_um.detach();
   out.solve_site_weight = w.detach().reshape({-1}).to(torch::kFloat64);
   out.solve_site_image = index;

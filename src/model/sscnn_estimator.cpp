@@ -108,6 +108,10 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
       detail << status::kAmbiguousAperture << ": the runner-up lattice placement fits the spot sizes only "
              << std::setprecision(3) << p.code_margin << " times worse (needs " << kMinApertureCodeMargin << ")";
       e.status = detail.str();
+    } else if (p.lone_spot_ambiguous) {
+      e.valid = false;
+      e.status = status::withDetail(status::kAmbiguousAperture,
+                                    "one spot lit, and another aperture (of another size) could have made it");
     } else if (impl_->model.meta.mismatch_threshold > 0.0 && p.spot_mismatch > impl_->model.meta.mismatch_threshold) {
       // The estimate is kept (angles, sigma) but not trusted: the geometry
       // it was solved through is not the unit's.

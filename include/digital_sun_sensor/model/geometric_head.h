@@ -111,6 +111,9 @@ struct GeometricSolution {
   // of the spot noise per unit weight, which the model's mismatch scale
   // calibrates (how far the spots are from any pattern the geometry makes).
   torch::Tensor residual_per_dof;
+  // [B] bool: one spot read, and another aperture could have made it
+  // (geometric::ImageSolution::lone_spot_ambiguous).
+  torch::Tensor lone_spot_ambiguous;
 };
 
 // Solves each image's sun angles from its sites: positions site_um [N, 2]

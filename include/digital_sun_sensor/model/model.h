@@ -40,6 +40,9 @@ struct Prediction {
   // there, large on a unit the geometry does not describe. 0 for other
   // heads, with fewer than two spots read, or before calibration.
   double spot_mismatch = 0.0;
+  // Geometric head: one spot read, which another aperture could have made
+  // (SscnnOutput::lone_spot_ambiguous, in any of the mirror images).
+  bool lone_spot_ambiguous = false;
 };
 
 struct Model {

@@ -43,6 +43,9 @@ struct SscnnOutput {
   // site its position [N, 2] (um from the detector centre, double), weight
   // [N] (double) and image [N] (what a unit calibration fits the geometry to).
   torch::Tensor solve_residual_per_dof, solve_site_um, solve_site_weight, solve_site_image;
+  // Geometric head: one spot read that another aperture could have made [B]
+  // (bool; GeometricSolution::lone_spot_ambiguous).
+  torch::Tensor lone_spot_ambiguous;
   // Geometric head, internal: the output MLP's features [B, F] (detached),
   // read by the variance once the solve is known.
   torch::Tensor head_features;

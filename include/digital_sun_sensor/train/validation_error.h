@@ -26,7 +26,8 @@ struct ValidationError {
   double class_accuracy = 0.0;
   std::size_t images = 0;
   // Left out of the mean and max: declined as the estimator would (aperture
-  // code margin below kMinApertureCodeMargin), or resolved to a wrong class
+  // code margin below kMinApertureCodeMargin, a lone spot of an unknown
+  // aperture), or resolved to a wrong class
   // and off by more than kGrossValidationErrorDeg.
   std::size_t gross = 0;
 };
