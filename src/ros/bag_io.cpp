@@ -76,7 +76,15 @@ DatasetBagWriter::DatasetBagWriter(const std::string& path, const SensorConfig& 
 
 DatasetBagWriter::~DatasetBagWriter() {
   if (bag_) {
-    bag_->close();
+    // Closing flushes, which throws on a full disk; a destructor must not
+    // (the error that brought us here is already on its way). A bag whose
+    // close failed would try again in its own destructor and end the
+    // process: it is let go instead (its memory, once, on a failure).
+    try {
+      bag_->close();
+    } catch (const rosbag::BagException&) {
+      static_cast<void>(bag_.release());
+    }
     std::remove(partial_.c_str());
   }
 }
@@ -86,13 +94,22 @@ void DatasetBagWriter::write(const DatasetItem& item) {
   header.seq = static_cast<std::uint32_t>(item.index);
   header.stamp = start_ + ros::Duration(static_cast<double>(item.index) / rate_hz_);
   header.frame_id = topics_.frame_id;
-  bag_->write(topics_.image, header.stamp, toImageMsg(item.image, header));
-  bag_->write(topics_.truth, header.stamp, toTruthMsg(item.truth, config_, header));
-  bag_->write(topics_.spots, header.stamp, toSpotsMsg(item.truth, header));
+  try {
+    bag_->write(topics_.image, header.stamp, toImageMsg(item.image, header));
+    bag_->write(topics_.truth, header.stamp, toTruthMsg(item.truth, config_, header));
+    bag_->write(topics_.spots, header.stamp, toSpotsMsg(item.truth, header));
+  } catch (const rosbag::BagException& e) {
+    throw std::runtime_error("cannot write bag '" + partial_ + "' (image " + std::to_string(item.index) +
+                             "; disk full?): " + e.what());
+  }
 }
 
 void DatasetBagWriter::commit() {
-  bag_->close();
+  try {
+    bag_->close();
+  } catch (const rosbag::BagException& e) {
+    throw std::runtime_error("cannot write bag '" + partial_ + "' (disk full?): " + e.what());
+  }
   bag_.reset();
   if (std::rename(partial_.c_str(), path_.c_str()) != 0) {
     throw std::runtime_error("cannot rename '" + partial_ + "' to '" + path_ + "'");
