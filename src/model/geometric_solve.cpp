@@ -259,7 +259,11 @@ std::vector<Eigen::Vector2d> groupSpots(const Design& design, const Eigen::Vecto
 ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& reference_rad,
                          const Options& options) {
   Eigen::Vector2d angles = clampAngles(reference_rad);
-  bool out_lone_spot_ambiguous = false;
+  // The search's hypotheses, refined and scored, and the chosen one's score
+  // (none without a search).
+  std::vector<std::pair<Eigen::Vector2d, Score>> candidates;
+  Score chosen;
+  constexpr double kTieScore = 0.02;
   if (options.search && !sites.empty()) {
     // Hypotheses: the reference, and per group the angles that put its spot
     // on the brightest site (the first of equals), each refined and scored.
@@ -267,11 +271,9 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
     // reference wins: a periodic mask whose edge row has left the detector
     // looks the same one pitch further (thesis_ma: 3 deg), and only the
     // network's coarse estimate can tell which.
-    constexpr double kTieScore = 0.02;
     std::size_t anchor = 0;
     for (std::size_t i = 1; i < sites.size(); ++i)
       if (sites[i].weight > sites[anchor].weight) anchor = i;
-    std::vector<std::pair<Eigen::Vector2d, Score>> candidates;
     const Eigen::Vector2d start = refine(design, sites, angles, options);
     candidates.emplace_back(start, score(design, sites, start, options));
     for (int g = 0; g < design.groups; ++g) {
@@ -282,7 +284,6 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
     for (const auto& c : candidates) best = std::max(best, c.second.total());
     const Eigen::Vector2d reference = angles;
     double nearest = std::numeric_limits<double>::infinity();
-    Score chosen;
     for (const auto& c : candidates) {
       const double distance = (c.first - reference).squaredNorm();
       if (c.second.total() >= best - kTieScore && distance < nearest) {
@@ -291,21 +292,22 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
         chosen = c.second;
       }
     }
-    if (design.groups > 1 && aperturesDiffer(design)) {
-      const Reading r = readSpots(design, sites, angles, options.gate_um, options);
-      const auto lit = std::count_if(r.sum.begin(), r.sum.end(), [](double s) { return s > 0.0; });
-      const double distinct = degToRad(ImageSolution::kDistinctDeg);
-      for (const auto& c : candidates)
-        out_lone_spot_ambiguous |=
-            lit == 1 && (c.first - angles).norm() > distinct && c.second.explained >= chosen.explained - kTieScore;
-    }
   } else {
     angles = refine(design, sites, angles, options);
   }
   ImageSolution out;
   out.angles_rad = angles;
-  out.lone_spot_ambiguous = out_lone_spot_ambiguous;
   const Reading r = readSpots(design, sites, angles, options.gate_um, options);
+  // One lit spot on a mask whose apertures differ: ambiguous when another
+  // hypothesis explains the light as well (a dimmer aperture's spot may be
+  // under the threshold, so dark spots do not decide).
+  const auto lit = std::count_if(r.sum.begin(), r.sum.end(), [](double s) { return s > 0.0; });
+  if (lit == 1 && design.groups > 1 && aperturesDiffer(design)) {
+    const double distinct = degToRad(ImageSolution::kDistinctDeg);
+    out.lone_spot_ambiguous = std::any_of(candidates.begin(), candidates.end(), [&](const auto& c) {
+      return (c.first - angles).norm() > distinct && c.second.explained >= chosen.explained - kTieScore;
+    });
+  }
   out.group.resize(sites.size());
   for (std::size_t i = 0; i < sites.size(); ++i)
     out.group[i] = r.distance2[i] < options.gate_um * options.gate_um ? r.group[i] : -1;
