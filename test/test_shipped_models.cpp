@@ -164,6 +164,41 @@ TEST(ShippedModels, ThesisSa) { expectHeadline("thesis_sa", 400); }
 TEST(ShippedModels, ThesisSaT50) { expectHeadline("thesis_sa_t50", 400); }
 TEST(ShippedModels, ThesisMa) { expectHeadline("thesis_ma", 400); }
 TEST(ShippedModels, WideMa) { expectHeadline("wide_ma", 300); }
+// wide_ma's head publishes nothing the backbone's features reach (angles
+// from the spots and the aperture code, the class from the position, a
+// constant sigma): inference skips it and publishes the same to the bit.
+// Every other shipped model runs its backbone.
+TEST(ShippedModels, OnlyWideMaSkipsItsBackboneAndPublishesTheSame) {
+  for (const std::string name :
+       {"thesis_sa", "thesis_sa_t50", "thesis_ma", "thesis_sa_published", "thesis_ma_published"})
+    EXPECT_TRUE(loadModel(std::string(DSS_SOURCE_DIR) + "/models/" + name + ".dssmodel").net->backboneNeeded()) << name;
+  Model m = loadModel(std::string(DSS_SOURCE_DIR) + "/models/wide_ma.dssmodel");
+  m.net->eval();
+  ASSERT_FALSE(m.net->backboneNeeded());
+  DatasetSpec spec = readRecipe("wide_ma").test;
+  spec.count = 12;
+  std::vector<cv::Mat> images;
+  DatasetGenerator(parseSensorConfig(m.meta.sensor_yaml, "wide_ma"), spec).run([&](const DatasetItem& item) {
+    images.push_back(item.image);
+  });
+  const auto skipped = m.predict(images);
+  m.net->setSkipUnusedBackbone(false);
+  const auto full = m.predict(images);
+  ASSERT_EQ(skipped.size(), full.size());
+  for (std::size_t i = 0; i < full.size(); ++i) {
+    EXPECT_EQ(skipped[i].alpha_rad, full[i].alpha_rad) << i;
+    EXPECT_EQ(skipped[i].beta_rad, full[i].beta_rad) << i;
+    EXPECT_EQ(skipped[i].alpha_variance_rad2, full[i].alpha_variance_rad2) << i;
+    EXPECT_EQ(skipped[i].beta_variance_rad2, full[i].beta_variance_rad2) << i;
+    EXPECT_EQ(skipped[i].subfov_class, full[i].subfov_class) << i;
+    EXPECT_EQ(skipped[i].code_margin, full[i].code_margin) << i;
+  }
+  // A variance that reads the features needs the backbone again.
+  torch::NoGradGuard no_grad;
+  m.net->named_parameters()["variance.weight"].fill_(1e-3);
+  EXPECT_TRUE(m.net->backboneNeeded());
+}
+
 TEST(ShippedModels, ThesisSaPublished) { expectHeadline("thesis_sa_published", 400); }
 TEST(ShippedModels, ThesisMaPublished) { expectHeadline("thesis_ma_published", 400); }
 

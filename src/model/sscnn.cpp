@@ -31,6 +31,7 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
       channels = arch.widths[stage];
     }
   }
+  pooled_width_ = 2 * channels;
   int features = 2 * channels;  // average + max pooled
   if (arch.centroid_pool) {
     centroid_conv1_ =
@@ -169,6 +170,19 @@ torch::Tensor SscnnNetImpl::priorAngles(const torch::Tensor& position) const {
   return (nodes * w.unsqueeze(0)).sum(2).t();
 }
 
+bool SscnnNetImpl::backboneNeeded() const {
+  if (!arch_.centroid_pool || arch_.feature_corrections) return true;  // the angles read the features
+  if (arch_.latticeHead() && arch_.lattice_resolve == LatticeResolve::kClass) return true;  // pitches from the class
+  if (!arch_.apertureClassLattice() && !arch_.geometric_head) return true;  // the class is the classifier's
+  // The geometric head's variance also reads the solve's log variance (its last two inputs).
+  const std::int64_t features = variance_->weight.size(1) - (arch_.geometric_head ? 2 : 0);
+  return variance_->weight.slice(1, 0, features).count_nonzero().item<std::int64_t>() != 0;
+}
+
+bool SscnnNetImpl::skipsBackbone() const {
+  return skip_unused_backbone_ && !is_training() && !torch::GradMode::is_enabled() && !backboneNeeded();
+}
+
 std::int64_t SscnnNetImpl::parameterCount() const {
   std::int64_t n = 0;
   for (const auto& p : parameters()) n += p.numel();
@@ -177,15 +191,19 @@ std::int64_t SscnnNetImpl::parameterCount() const {
 
 SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor& known_classes,
                                   const torch::Tensor& known_angles) {
-  SparseTensor x = stem_->forward(input);
-  x = x.with(torch::relu(x.features));
-  if (arch_.stem_max_pool) {
-    auto rb = x.rulebook(RulebookCache::Kind::kStrided, 3, 2, 1);
-    x = {sparse::sparseMaxPool(x.features, *rb), rb->output, x.rulebooks};
+  torch::Tensor pooled;
+  if (skipsBackbone()) {
+    pooled = torch::zeros({input.sites->batchSize(), pooled_width_}, input.features.options());
+  } else {
+    SparseTensor x = stem_->forward(input);
+    x = x.with(torch::relu(x.features));
+    if (arch_.stem_max_pool) {
+      auto rb = x.rulebook(RulebookCache::Kind::kStrided, 3, 2, 1);
+      x = {sparse::sparseMaxPool(x.features, *rb), rb->output, x.rulebooks};
+    }
+    for (auto& block : blocks_) x = block->forward(x);
+    pooled = torch::cat({sparse::globalAvgPool(x.features, *x.sites), sparse::globalMaxPool(x.features, *x.sites)}, 1);
   }
-  for (auto& block : blocks_) x = block->forward(x);
-  const torch::Tensor pooled =
-      torch::cat({sparse::globalAvgPool(x.features, *x.sites), sparse::globalMaxPool(x.features, *x.sites)}, 1);
   SpotReading spots;
   if (arch_.centroid_pool) {
     // Learned weights w >= 0 per input site from the local pixel values only

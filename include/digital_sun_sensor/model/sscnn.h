@@ -87,6 +87,19 @@ class SscnnNetImpl : public torch::nn::Module {
   // (normalized), the solve plus its learned smooth correction.
   torch::Tensor correctSolvedAngles(const torch::Tensor& solved);
   std::int64_t parameterCount() const;
+  // Whether what a prediction publishes (angles, variance, sub-FOV class)
+  // reads the backbone's pooled features. Not where the angles are a
+  // function of the spot reading alone (no feature corrections, whole
+  // pitches from the aperture code or the centroid), the class goes with the
+  // resolved position and the variance's weights on the features are zero
+  // (a constant sigma): wide_ma's shipped head, whose trained backbone
+  // changed no published digit. Inference (eval mode, no autograd) then skips
+  // the backbone unless setSkipUnusedBackbone(false); the class logits are
+  // those of zero features (Prediction::class_probability means nothing).
+  bool backboneNeeded() const;
+  void setSkipUnusedBackbone(bool skip) { skip_unused_backbone_ = skip; }
+  // This forward pass would skip the backbone.
+  bool skipsBackbone() const;
 
   // The variance head's level, the sigma interface (model/sigma.cpp): adds to
   // the predicted log variance of the normalized angles, per axis;
@@ -140,6 +153,8 @@ class SscnnNetImpl : public torch::nn::Module {
   torch::Tensor priorAngles(const torch::Tensor& position) const;
   torch::Tensor monomials(const torch::Tensor& centroid) const;
   ArchSpec arch_;
+  std::int64_t pooled_width_ = 0;  // average + max pooled backbone features
+  bool skip_unused_backbone_ = true;
   std::shared_ptr<SparseConvImpl> stem_, centroid_conv1_, centroid_conv2_;
   std::vector<std::shared_ptr<ResidualBlockImpl>> blocks_;
   torch::nn::LayerNorm head_norm_{nullptr};
