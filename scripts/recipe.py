@@ -12,6 +12,8 @@ Keys:
   train             {arch, epochs, lr, seed, centroid_weighting, feature_corrections,
                     [lattice_phase], [head]}: dss train options
   calibrate_sigma   {correction_degree: keep|none|D, symmetry: keep|none|flips|dihedral}
+  baseline          centroid (default: dss calibrate on the first training bag) or pattern (the
+                    whole-pattern estimator of the sensor's design, for masks whose spots merge)
   headline          {alpha_mean_deg, beta_mean_deg}: the model's mean error on the test bag,
                     which test/test_shipped_models.cpp pins (not printed)
 """
@@ -52,7 +54,9 @@ def main():
             recipe = yaml.safe_load(f)
     except (OSError, yaml.YAMLError) as e:
         sys.exit("%s: %s" % (path, e))
-    check(path, "", recipe, ("sensor", "bags", "train", "calibrate_sigma", "headline"), ("set",))
+    check(path, "", recipe, ("sensor", "bags", "train", "calibrate_sigma", "headline"), ("set", "baseline"))
+    if recipe.get("baseline", "centroid") not in ("centroid", "pattern"):
+        fail(path, "baseline", "must be centroid or pattern")
     check(path, "headline", recipe["headline"], ("alpha_mean_deg", "beta_mean_deg"))
     check(path, "bags", recipe["bags"], ("train", "test", "sigma"))
     train = recipe["train"]
@@ -76,6 +80,7 @@ def main():
         "HEAD": str(train.get("head", "")),
         "CORRECTION": str(sigma["correction_degree"]),
         "SYMMETRY": str(sigma["symmetry"]),
+        "BASELINE": str(recipe.get("baseline", "centroid")),
     }
     for key, value in out.items():
         print("%s=%s" % (key, shlex.quote(value)))

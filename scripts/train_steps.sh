@@ -10,8 +10,10 @@
 # keep (flips, dihedral), sets the model's inference symmetry and refits its
 # sigma on the same bags; evaluates it on the test bag, then calibrates the
 # centroid baseline on the first 1000 images of the first training bag
-# (MODELS/NAME.calib.yaml) and evaluates it on the same test bag. Results:
-# DATA/NAME.*.json and .csv.
+# (MODELS/NAME.calib.yaml) and evaluates it on the same test bag; with
+# BASELINE=pattern (a mask whose spots merge, no spot to calibrate on) the
+# baseline is the whole-pattern estimator of config/sensors/$SENSOR.yaml.
+# Results: DATA/NAME.*.json and .csv.
 train_and_evaluate() {
   local name="$1" test="$3" epochs="$5" arch="$6" correction="$7" symmetry="$8"
   local -a train sigma train_data=() sigma_data=()
@@ -38,6 +40,11 @@ train_and_evaluate() {
     fi
   fi
   "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$name.sscnn.csv" | tee "$DATA/$name.sscnn.json"
+  if [ "${BASELINE:-centroid}" = pattern ]; then
+    "$DSS" eval --data "$test" --estimator "pattern:$ROOT/config/sensors/$SENSOR.yaml" \
+      --csv "$DATA/$name.pattern.csv" | tee "$DATA/$name.pattern.json"
+    return
+  fi
   "$DSS" calibrate --data "${train[0]}" --max-images 1000 --out "$calib" > "$DATA/$name.calibrate.json"
   "$DSS" eval --data "$test" --estimator "centroid:$calib" --csv "$DATA/$name.centroid.csv" \
     | tee "$DATA/$name.centroid.json"

@@ -237,6 +237,10 @@ TEST(Train, AutoEpochsFollowTheHead) {
   EXPECT_EQ(Trainer(tinySensor(), train, validation, options).run({}, stop).last.epochs, kClassicHeadEpochs);
   options.head = "geometric";
   EXPECT_EQ(Trainer(tinySensor(), train, validation, options).run({}, stop).last.epochs, kGeometricHeadEpochs);
+  options.head = "pattern";  // nothing in its solve trains by gradient
+  EXPECT_EQ(Trainer(tinySensor(), train, validation, options).run({}, stop).last.epochs, kPatternHeadEpochs);
+  options.epochs = 3;
+  EXPECT_THROW(Trainer(tinySensor(), train, validation, options), std::invalid_argument);
 }
 
 // --init: training starts from the given model's weights, which must suit

@@ -48,9 +48,10 @@ int runTrain(int argc, char** argv) {
            "thesis_ma); default: the --init model's, else spotwise",
            "", false, false},
           {"head", "HEAD",
-           "which head solves the angles: geometric (through the sensor's geometry, any mask), classic (the "
-           "mask-family heads: centroid, lattice, aperture code) or auto (geometric for masks of several apertures "
-           "that are not a full centred lattice); default: the --init model's, else auto",
+           "which head solves the angles: geometric (through the sensor's geometry, any mask), pattern (the "
+           "whole-pattern solve of a mask whose spots merge), classic (the mask-family heads: centroid, lattice, "
+           "aperture code) or auto (pattern where most apertures' spots merge, geometric for other masks of several "
+           "apertures that are not a full centred lattice); default: the --init model's, else auto",
            "", false, false},
           {"init", "MODEL", "start from this model's weights (fine-tuning; it must suit the sensor)", "", false, false},
           {"resume", "CKPT", "continue from this checkpoint", "", false, false},
@@ -61,7 +62,8 @@ int runTrain(int argc, char** argv) {
            "epochs of the learning-rate schedule (0: write the model as created, validated, with its sigma and "
            "input envelope fitted; auto: " +
                std::to_string(kGeometricHeadEpochs) + " with the geometric head, " +
-               std::to_string(kClassicHeadEpochs) + " with the classic heads)",
+               std::to_string(kClassicHeadEpochs) + " with the classic heads, " + std::to_string(kPatternHeadEpochs) +
+               " with the pattern head)",
            "auto", false, false},
           {"batch", "B", "images per step", std::to_string(defaults.batch_size), false, false},
           {"lr", "LR", "peak learning rate (AdamW)", defaultText(defaults.learning_rate), false, false},

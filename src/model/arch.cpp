@@ -24,8 +24,12 @@ CentroidWeighting parseCentroidWeighting(const std::string& name) {
 }
 
 void validateHeadChoice(const std::string& head) {
-  if (head != "auto" && head != "geometric" && head != "classic")
-    throw std::invalid_argument("head must be 'auto', 'geometric' or 'classic', not '" + head + "'");
+  if (head != "auto" && head != "geometric" && head != "pattern" && head != "classic")
+    throw std::invalid_argument("head must be 'auto', 'geometric', 'pattern' or 'classic', not '" + head + "'");
+}
+
+std::string headName(const ArchSpec& arch) {
+  return arch.geometric_head ? "geometric" : arch.pattern_head ? "pattern" : "classic";
 }
 
 void ArchSpec::validate() const {
@@ -77,6 +81,8 @@ void ArchSpec::validate() const {
           "the geometric head needs a positive geometric_gate_um, detector_pitch_um, detector size and "
           "angle_scale_rad");
   }
+  if (pattern_head && (geometric_head || latticeHead() || !(angle_scale_rad > 0.0)))
+    fail("the pattern head takes no lattice or geometric head, and needs a positive angle_scale_rad");
   if (head_hidden.size() > static_cast<std::size_t>(limits::kMaxStages))
     fail("at most " + std::to_string(limits::kMaxStages) + " head_hidden layers (limit)");
   for (int h : head_hidden)

@@ -82,6 +82,7 @@ std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::Site
       p.class_probability = c[i][(*resolved)[i]];
     }
     p.active_sites = counts[static_cast<std::size_t>(i)];
+    if (!out.declined.empty()) p.declined = out.declined[static_cast<std::size_t>(i)];
   }
   return result;
 }

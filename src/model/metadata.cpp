@@ -118,22 +118,42 @@ void setLattice(const SensorConfig& config, const HeadOptions& head, ArchSpec& a
                                (0.5 * std::min(config.detector.width_px, config.detector.height_px));
 }
 
-// The geometric head in place of the mask-family heads (HeadOptions::head).
+void clearLattice(ArchSpec& arch) {
+  arch.lattice_pitch_x = arch.lattice_pitch_y = 0.0;
+  arch.lattice_columns = arch.lattice_rows = 1;
+  arch.lattice_whole_spot_phase = arch.lattice_spotwise_phase = false;
+  arch.lattice_pixel_x = arch.lattice_pixel_y = 0.0;
+}
+
+// Most apertures share their spot with another (fewer groups of overlapping
+// spots than half the apertures): thesis_ca's 117 spots, where the
+// threshold keeps a network of ridges and no group's light adds up to a
+// spot the geometric head could read.
+bool spotsMerge(const GeometryDesign& design) {
+  return 2 * design.groupCount() < static_cast<int>(design.apertures_um.size());
+}
+
+// The geometric or pattern head in place of the mask-family heads (HeadOptions::head).
 void setGeometric(const SensorConfig& config, const HeadOptions& head, ArchSpec& arch) {
   validateHeadChoice(head.head);
   const bool family_head = arch.latticeHead() || config.mask.apertures.size() < 2;
   if (head.head == "classic" || (head.head == "auto" && family_head)) return;
+  const GeometryDesign design = geometryDesignOf(config);
+  // The pattern head reads the image the sites make, which is the whole
+  // image only where the chip zeroes what is under its threshold.
+  if (head.head == "pattern" && !config.threshold.enabled)
+    throw std::invalid_argument("the pattern head needs a sensor that thresholds on chip (sensor '" + config.name +
+                                "' has threshold.enabled false)");
+  if (head.head == "pattern" || (head.head == "auto" && config.threshold.enabled && spotsMerge(design))) {
+    clearLattice(arch);
+    arch.pattern_head = true;
+    return;
+  }
   // An aperture-coded lattice keeps its head as the coarse estimate: the
   // code says which aperture each spot is, which the solve's own search
   // (by the light the spots explain) cannot tell. Other lattices give way
   // to the centroid and the search.
-  if (!(arch.latticeHead() && arch.lattice_resolve == LatticeResolve::kCode)) {
-    arch.lattice_pitch_x = arch.lattice_pitch_y = 0.0;
-    arch.lattice_columns = arch.lattice_rows = 1;
-    arch.lattice_whole_spot_phase = arch.lattice_spotwise_phase = false;
-    arch.lattice_pixel_x = arch.lattice_pixel_y = 0.0;
-  }
-  const GeometryDesign design = geometryDesignOf(config);
+  if (!(arch.latticeHead() && arch.lattice_resolve == LatticeResolve::kCode)) clearLattice(arch);
   arch.geometric_head = true;
   arch.geometric_apertures = static_cast<int>(design.apertures_um.size());
   arch.geometric_groups = design.groupCount();
@@ -164,6 +184,7 @@ ModelMetadata metadataFor(const SensorConfig& config, const ArchSpec& arch, cons
   m.arch.angle_scale_rad = degToRad(std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg));
   m.arch.validate();
   m.input = inputSpecFor(config);
+  if (m.arch.pattern_head) m.input.max_sites = m.input.width_px * m.input.height_px;  // every lit pixel
   m.angle_scale_rad = degToRad(std::max(config.fov.alpha_max_deg, config.fov.beta_max_deg));
   m.sensor_name = config.name;
   m.sensor_yaml = toYaml(config);
@@ -219,6 +240,7 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "detector_width_px" << YAML::Value << m.arch.detector_width_px;
     e << YAML::Key << "detector_height_px" << YAML::Value << m.arch.detector_height_px;
   }
+  if (m.arch.pattern_head) e << YAML::Key << "pattern_head" << YAML::Value << true;
   e << YAML::Key << "head_hidden" << YAML::Value << YAML::Flow << m.arch.head_hidden;
   e << YAML::Key << "num_classes" << YAML::Value << m.arch.num_classes;
   e << YAML::EndMap;
@@ -356,6 +378,8 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     m.arch.detector_width_px = get<int>(a, "detector_width_px", origin, "arch.");
     m.arch.detector_height_px = get<int>(a, "detector_height_px", origin, "arch.");
   }
+  if (a["pattern_head"])  // absent: another head
+    m.arch.pattern_head = get<bool>(a, "pattern_head", origin, "arch.");
   m.arch.head_hidden = get<std::vector<int>>(a, "head_hidden", origin, "arch.");
   m.arch.num_classes = get<int>(a, "num_classes", origin, "arch.");
   m.arch.angle_scale_rad = get<double>(root, "angle_scale_rad", origin, "");
@@ -482,10 +506,10 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     } catch (const std::invalid_argument& e) {
       throw ModelError(origin + ": metadata key 'inference_symmetry': " + e.what());
     }
-    if (m.inference_symmetry != InferenceSymmetry::kNone && m.arch.geometric_head)
+    if (m.inference_symmetry != InferenceSymmetry::kNone && (m.arch.geometric_head || m.arch.pattern_head))
       throw ModelError(origin + ": metadata key 'inference_symmetry' is '" +
-                       inferenceSymmetryName(m.inference_symmetry) +
-                       "' but the geometric head solves through the sensor's own geometry (none only)");
+                       inferenceSymmetryName(m.inference_symmetry) + "' but the " + headName(m.arch) +
+                       " head solves through the sensor's own geometry (none only)");
     if (m.inference_symmetry != InferenceSymmetry::kNone) {
       std::string why;
       try {

@@ -22,6 +22,7 @@ Model createModel(const SensorConfig& config, const ArchSpec& arch, std::uint64_
     m.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
   }
   if (m.meta.arch.geometric_head) m.net->initGeometry(geometryDesignOf(config));
+  m.net->initPattern(config, m.meta.input);
   if (m.meta.arch.apertureClassLattice()) {
     // Classes are the apertures (SubFovType::kNearestAperture), in config order.
     std::vector<std::array<double, 2>> offsets;
@@ -37,7 +38,8 @@ Model createModel(const SensorConfig& config, const ArchSpec& arch, std::uint64_
   // the untrained physics prior, rather than at unit variance ~16 log units
   // above the trained error level (the level is refitted after training
   // anyway: train/sigma_calibration).
-  if (slope_x > 0.0 && slope_y > 0.0)
+  // (The pattern head's sigma starts at its solve's own.)
+  if (slope_x > 0.0 && slope_y > 0.0 && !m.meta.arch.pattern_head)
     m.scaleSigma(slope_x / config.detector.width_px, slope_y / config.detector.height_px);
   return m;
 }

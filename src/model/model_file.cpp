@@ -99,6 +99,13 @@ Model deserializeModel(const std::string& bytes, const std::string& origin, cons
       throw ModelError(origin + ": metadata key 'aperture_position': " + e.what());
     }
   }
+  if (m.meta.arch.pattern_head) {
+    try {
+      m.net->initPattern(parseSensorConfig(m.meta.sensor_yaml, origin + " (embedded sensor config)"), m.meta.input);
+    } catch (const std::exception& e) {
+      throw ModelError(origin + ": no pattern estimator from the embedded sensor config: " + e.what());
+    }
+  }
   m.net->eval();
   return m;
 }

@@ -54,7 +54,8 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   // the features the angles need.
   // The geometric head's variance also reads the solve's log variance per
   // axis (how the read spots constrain the angles), as two more inputs.
-  variance_ = register_module("variance", torch::nn::Linear(features + (arch.geometric_head ? 2 : 0), 2));
+  const bool solved = arch.geometric_head || arch.pattern_head;  // the variance reads the solve's too
+  variance_ = register_module("variance", torch::nn::Linear(features + (solved ? 2 : 0), 2));
   // The classes get their own branch: in a shared MLP the angle NLL's gradients,
   // which grow as the variance shrinks, drown the cross-entropy's.
   const bool class_resolved = arch.apertureClassLattice();
@@ -86,7 +87,7 @@ SscnnNetImpl::SscnnNetImpl(const ArchSpec& arch) : arch_(arch) {
   output_->bias.zero_();
   variance_->weight.mul_(0.1);  // ...and unit variance
   variance_->bias.zero_();
-  if (arch.geometric_head) {  // ...or the solve's, per axis
+  if (solved) {  // ...or the solve's, per axis
     variance_->weight.slice(1, features, features + 2).zero_();
     variance_->weight[0][features] = 1.0;
     variance_->weight[1][features + 1] = 1.0;
@@ -171,6 +172,7 @@ torch::Tensor SscnnNetImpl::priorAngles(const torch::Tensor& position) const {
 }
 
 bool SscnnNetImpl::backboneNeeded() const {
+  if (arch_.pattern_head) return false;                                // its forward never runs the network
   if (!arch_.centroid_pool || arch_.feature_corrections) return true;  // the angles read the features
   if (arch_.latticeHead() && arch_.lattice_resolve == LatticeResolve::kClass) return true;  // pitches from the class
   if (!arch_.apertureClassLattice() && !arch_.geometric_head) return true;  // the class is the classifier's
@@ -191,6 +193,7 @@ std::int64_t SscnnNetImpl::parameterCount() const {
 
 SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor& known_classes,
                                   const torch::Tensor& known_angles) {
+  if (arch_.pattern_head) return patternForward(input);
   torch::Tensor pooled;
   if (skipsBackbone()) {
     pooled = torch::zeros({input.sites->batchSize(), pooled_width_}, input.features.options());

@@ -102,6 +102,9 @@ std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& im
                                     std::to_string(p.active_sites) +
                                         " lit pixels (training: " + std::to_string(impl_->envelope.min_sites) + ".." +
                                         std::to_string(impl_->envelope.max_sites) + ")");
+    } else if (!p.declined.empty()) {
+      e.valid = false;
+      e.status = p.declined;
     } else if (p.code_margin < kMinApertureCodeMargin) {
       e.valid = false;
       std::ostringstream detail;

@@ -34,7 +34,7 @@ TrainOptions optionsFromParams(const ros::NodeHandle& pnh) {
   o.lattice_phase = pnh.param<std::string>("lattice_phase", "");
   o.head = pnh.param<std::string>("head", "");
   o.batch_size = pnh.param("batch_size", o.batch_size);
-  // "auto" (or absent): the head's (kGeometricHeadEpochs, kClassicHeadEpochs).
+  // "auto" (or absent): the head's (kGeometricHeadEpochs, kClassicHeadEpochs, kPatternHeadEpochs).
   XmlRpc::XmlRpcValue epochs;
   if (pnh.getParam("epochs", epochs)) {
     if (epochs.getType() == XmlRpc::XmlRpcValue::TypeInt)

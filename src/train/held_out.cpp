@@ -19,7 +19,8 @@ std::vector<HeldOutPrediction> predictHeldOut(const Model& model, const Training
   const std::vector<Prediction> predictions = model.predictSamples(picked);
   std::vector<HeldOutPrediction> out;
   for (std::size_t k = 0; k < picked.size(); ++k)
-    if (predictions[k].active_sites > 0) out.push_back({picked[k], predictions[k]});  // else "no_sun"
+    if (predictions[k].active_sites > 0 && predictions[k].declined.empty())  // else "no_sun" or declined
+      out.push_back({picked[k], predictions[k]});
   return out;
 }
 

@@ -90,8 +90,13 @@ void TrainOptions::validate() const {
           "feature_corrections must be 'on' or 'off', not '" + feature_corrections + "'");
   require(lattice_phase.empty() || lattice_phase == "spotwise" || lattice_phase == "whole_spots",
           "lattice_phase must be 'spotwise' or 'whole_spots', not '" + lattice_phase + "'");
-  require(head.empty() || head == "auto" || head == "geometric" || head == "classic",
-          "head must be 'auto', 'geometric' or 'classic', not '" + head + "'");
+  if (!head.empty()) {
+    try {
+      validateHeadChoice(head);
+    } catch (const std::invalid_argument& e) {
+      require(false, e.what());
+    }
+  }
   const auto& a = augmentation;
   for (double p : {a.gain_probability, a.noise_probability, a.threshold_probability, a.dropout_probability})
     require(p >= 0 && p <= 1, "augmentation probabilities must be in [0, 1]");
@@ -151,7 +156,7 @@ Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOp
     if (model.meta.arch.latticeHead() && options.lattice_phase != phase)
       throw std::invalid_argument("training option init_model: " + options.init_model + " has lattice phase " + phase +
                                   ", not " + options.lattice_phase);
-    const std::string head = model.meta.arch.geometric_head ? "geometric" : "classic";
+    const std::string head = headName(model.meta.arch);
     if (options.head.empty() || options.head == "auto") options.head = head;
     if (options.head != head)
       throw std::invalid_argument("training option init_model: " + options.init_model + " has the " + head +
@@ -161,7 +166,13 @@ Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOp
     model = createModel(sensor, design.arch, deriveSeed(options.seed, 0xA7C4), design.head);
   }
   if (options.epochs == kEpochsAuto)
-    options.epochs = model.meta.arch.geometric_head ? kGeometricHeadEpochs : kClassicHeadEpochs;
+    options.epochs = model.meta.arch.pattern_head     ? kPatternHeadEpochs
+                     : model.meta.arch.geometric_head ? kGeometricHeadEpochs
+                                                      : kClassicHeadEpochs;
+  if (model.meta.arch.pattern_head && options.epochs > 0)
+    throw std::invalid_argument(
+        "the pattern head has nothing to train by gradient (its angles come from the whole-pattern solve): use "
+        "--epochs 0 or auto, then dss calibrate-sigma for its angle correction and sigma");
   model.net->train();
   optimizer = std::make_unique<torch::optim::AdamW>(
       model.net->parameters(), torch::optim::AdamWOptions(options.learning_rate).weight_decay(options.weight_decay));

@@ -28,7 +28,7 @@ ValidationError summarizeValidation(const std::vector<const SparseSample*>& samp
     correct += right_class;
     const double ea = std::abs(p.alpha_rad - s.alpha_rad) * kDegPerRad;
     const double eb = std::abs(p.beta_rad - s.beta_rad) * kDegPerRad;
-    if (p.code_margin < kMinApertureCodeMargin || p.lone_spot_ambiguous ||
+    if (p.code_margin < kMinApertureCodeMargin || p.lone_spot_ambiguous || !p.declined.empty() ||
         (!right_class && std::max(ea, eb) > kGrossValidationErrorDeg)) {
       ++v.gross;
       continue;

@@ -32,13 +32,17 @@ struct HeadOptions {
   // lattice_spotwise_phase); false gives the head of the models made before it
   // (the shipped thesis_ma).
   bool lattice_spotwise_phase = true;
-  // Which head solves the angles: "auto" (the geometric head for any mask
-  // of several apertures that is not a full centred lattice, else the
-  // mask-family heads), "geometric" (always) or "classic" (never).
+  // Which head solves the angles: "auto" (the pattern head for a mask whose
+  // spots merge, the geometric head for any other mask of several apertures
+  // that is not a full centred lattice, else the mask-family heads),
+  // "geometric", "pattern" or "classic" (the mask-family heads).
   std::string head = "auto";
 };
-// "auto", "geometric", "classic"; throws std::invalid_argument for another.
+// "auto", "geometric", "pattern", "classic"; throws std::invalid_argument for another.
 void validateHeadChoice(const std::string& head);
+struct ArchSpec;
+// The head an architecture holds: "geometric", "pattern" or "classic".
+std::string headName(const ArchSpec& arch);
 
 struct ArchSpec {
   std::string name;
@@ -110,6 +114,15 @@ struct ArchSpec {
   // the classifier's, which only had to be right for the search. From the
   // sensor's sub-FOV scheme (not a metadata key of its own).
   bool geometric_class_by_aperture = false;
+  // The pattern head, for masks whose spots merge (a coded mask such as
+  // thesis_ca, where no spot can be told apart): the angles, their
+  // covariance and the sub-FOV class come from the whole-pattern solve of the
+  // sensor's design (baseline/pattern_estimator.h) on the image the sites
+  // make; the model's angle correction and sigma level are fitted on held-out
+  // images (dss calibrate-sigma). The network is not run: nothing it could
+  // weigh enters the solve yet. Needs a sensor that thresholds on chip (the
+  // sites are then the whole image) and every lit pixel as a site.
+  bool pattern_head = false;
   std::vector<int> head_hidden{256, 256};
   int num_classes = 4;  // sub-FOV classes of the sensor
 

@@ -43,6 +43,9 @@ struct Prediction {
   // Geometric head: one spot read, which another aperture could have made
   // (SscnnOutput::lone_spot_ambiguous, in any of the mirror images).
   bool lone_spot_ambiguous = false;
+  // Pattern head: the solve's status where it gives no answer
+  // (SscnnOutput::declined); empty where it answers and for other heads.
+  std::string declined;
 };
 
 struct Model {

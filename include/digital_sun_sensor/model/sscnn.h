@@ -16,10 +16,13 @@
 
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/model/geometric_head.h"
+#include "digital_sun_sensor/model/input_spec.h"
 #include "digital_sun_sensor/model/sparse_layers.h"
 #include "digital_sun_sensor/sparse/sparse_tensor.h"
 
 namespace dss {
+
+class PatternEstimator;
 
 // Raw network outputs, normalized units.
 struct SscnnOutput {
@@ -49,6 +52,10 @@ struct SscnnOutput {
   // Geometric head, internal: the output MLP's features [B, F] (detached),
   // read by the variance once the solve is known.
   torch::Tensor head_features;
+  // Pattern head: per image the solve's status where it gives no answer
+  // (estimate_status.h: no fit, or two places in the field fit alike),
+  // empty where it answers; empty vector for other heads.
+  std::vector<std::string> declined;
 };
 
 class SscnnNetImpl : public torch::nn::Module {
@@ -80,6 +87,10 @@ class SscnnNetImpl : public torch::nn::Module {
   void initGeometricPrior(const torch::Tensor& table, double extent_x, double extent_y);
   // Geometric head: the sensor's nominal geometry (no-op for other heads).
   void initGeometry(const GeometryDesign& design);
+  // Pattern head: the whole-pattern estimator of the sensor's design (renders
+  // its template: seconds for a large mask), and how the sites' values map
+  // back to the image's digital numbers (no-op for other heads).
+  void initPattern(const SensorConfig& config, const InputSpec& input);
   // The geometric head's geometry (null for other heads): what a unit
   // calibration fits.
   SensorGeometry geometry() const { return geometry_; }
@@ -149,6 +160,9 @@ class SscnnNetImpl : public torch::nn::Module {
   // given, else from the coarse angles; adds the solve's log variance.
   void solveAngles(SscnnOutput& out, const torch::Tensor& w, const torch::Tensor& xy, const torch::Tensor& index,
                    std::int64_t batch, const torch::Tensor& known_angles);
+  // Pattern head: the images the sites make (every lit pixel; zero
+  // elsewhere, as the chip's threshold leaves them), each solved whole.
+  SscnnOutput patternForward(const sparse::SparseTensor& input);
   // Normalized angles of the physics prior at a position [B, 2].
   torch::Tensor priorAngles(const torch::Tensor& position) const;
   torch::Tensor monomials(const torch::Tensor& centroid) const;
@@ -167,6 +181,8 @@ class SscnnNetImpl : public torch::nn::Module {
   torch::Tensor geometric_prior_, geometric_prior_extent_;  // buffers [1, 2, size, size], [2]
   SensorGeometry geometry_{nullptr};                        // geometric head
   torch::nn::Linear geometric_correction_{nullptr};         // its smooth correction of the solved angles
+  std::shared_ptr<const PatternEstimator> pattern_;         // pattern head (initPattern)
+  InputSpec pattern_input_;
 };
 
 }  // namespace dss

@@ -31,6 +31,7 @@ class CheckpointError : public std::runtime_error {
 constexpr int kEpochsAuto = -1;
 constexpr int kGeometricHeadEpochs = 2;
 constexpr int kClassicHeadEpochs = 20;
+constexpr int kPatternHeadEpochs = 0;  // the model as created: nothing in its solve trains by gradient
 
 struct TrainOptions {
   std::string arch;  // architecture preset (empty: the init model's, else defaultArchName())
@@ -47,12 +48,12 @@ struct TrainOptions {
   // (their sites pooled, as the shipped thesis_ma); empty: the init model's,
   // else "spotwise". HeadOptions::lattice_spotwise_phase.
   std::string lattice_phase;
-  // Which head solves the angles (HeadOptions::head): "auto", "geometric" or
-  // "classic"; empty: the init model's, else "auto".
+  // Which head solves the angles (HeadOptions::head): "auto", "geometric",
+  // "pattern" or "classic"; empty: the init model's, else "auto".
   std::string head;
   int batch_size = 64;
   // The learning-rate schedule spans this many (0: the model as created;
-  // kEpochsAuto: the head's, kGeometricHeadEpochs or kClassicHeadEpochs).
+  // kEpochsAuto: the head's, kGeometricHeadEpochs, kClassicHeadEpochs or kPatternHeadEpochs).
   int epochs = kEpochsAuto;
   int patience_epochs = 0;          // stop when validation has not improved for this many (0: never)
   double learning_rate = 5e-4;      // peak, after a linear warm-up (measured: docs/training.md)

@@ -1,0 +1,80 @@
+// The pattern head (a mask whose spots merge, thesis_ca): `auto` picks it,
+// it answers as the sensor design's whole-pattern estimator does on the
+// same images (from the sites alone: every lit pixel is one), its file
+// round-trips, it never runs the network, and it is refused where the
+// sites are not the whole image.
+#include <gtest/gtest.h>
+
+#include "digital_sun_sensor/baseline/pattern_estimator.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/sim/dataset_generator.h"
+
+namespace dss {
+namespace {
+
+SensorConfig shipped(const std::string& name) {
+  return loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/" + name + ".yaml");
+}
+
+TEST(PatternHead, MergedSpotsGetItAndItAnswersAsThePatternEstimator) {
+  const SensorConfig config = shipped("thesis_ca");
+  const ArchSpec arch = archPreset("resnet10_w16", config.numSubFovClasses());
+  Model model = createModel(config, arch, 3);  // head "auto"
+  ASSERT_TRUE(model.meta.arch.pattern_head);
+  EXPECT_FALSE(model.meta.arch.geometric_head);
+  EXPECT_EQ(model.meta.input.max_sites, config.detector.width_px * config.detector.height_px);
+  EXPECT_FALSE(model.net->backboneNeeded());
+  // The other shipped masks keep their heads.
+  for (const std::string name : {"thesis_sa", "thesis_ma", "wide_ma"})
+    EXPECT_FALSE(createModel(shipped(name), arch, 3).meta.arch.pattern_head) << name;
+
+  DatasetSpec spec;
+  spec.count = 4;
+  spec.seed = 8831;
+  std::vector<cv::Mat> images;
+  DatasetGenerator(config, spec).run([&](const DatasetItem& item) { images.push_back(item.image); });
+  images.push_back(cv::Mat::zeros(images[0].size(), images[0].type()));  // no sun
+
+  PatternEstimatorOptions options;
+  options.sigma_images = 0;
+  PatternEstimator reference(config, options);
+  const auto expected = reference.estimate(images);
+  model.net->eval();
+  const Model loaded = deserializeModel(serializeModel(model), "pattern.dssmodel", &config);
+  ASSERT_TRUE(loaded.meta.arch.pattern_head);
+  for (const Model* m : {static_cast<const Model*>(&model), &loaded}) {
+    const auto predicted = m->predict(images);
+    ASSERT_EQ(predicted.size(), images.size());
+    for (std::size_t i = 0; i + 1 < images.size(); ++i) {
+      ASSERT_TRUE(expected[i].valid) << i << ": " << expected[i].status;
+      EXPECT_TRUE(predicted[i].declined.empty()) << i;
+      // The head's angles pass through the network's float precision.
+      EXPECT_NEAR(predicted[i].alpha_rad, expected[i].alpha_rad, 1e-8) << i;
+      EXPECT_NEAR(predicted[i].beta_rad, expected[i].beta_rad, 1e-8) << i;
+      EXPECT_NEAR(predicted[i].alpha_variance_rad2, expected[i].covariance[0], 1e-5 * expected[i].covariance[0]) << i;
+      EXPECT_NEAR(predicted[i].beta_variance_rad2, expected[i].covariance[3], 1e-5 * expected[i].covariance[3]) << i;
+      EXPECT_EQ(predicted[i].subfov_class, expected[i].subfov_class) << i;
+    }
+    EXPECT_EQ(predicted.back().active_sites, 0);
+  }
+}
+
+TEST(PatternHead, NeedsAnOnChipThreshold) {
+  SensorConfig config = shipped("thesis_sa");
+  const ArchSpec arch = archPreset("resnet10_w16", config.numSubFovClasses());
+  HeadOptions head;
+  head.head = "pattern";
+  EXPECT_TRUE(createModel(config, arch, 3, head).meta.arch.pattern_head);  // any mask, when asked
+  config.threshold.enabled = false;
+  try {
+    createModel(config, arch, 3, head);
+    ADD_FAILURE() << "a pattern head without an on-chip threshold";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("thresholds on chip"), std::string::npos) << e.what();
+  }
+  head.head = "patterns";
+  EXPECT_THROW(createModel(shipped("thesis_sa"), arch, 3, head), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace dss
