@@ -1,13 +1,14 @@
 // The pattern head (a mask whose spots merge, thesis_ca): `auto` picks it,
 // it answers as the sensor design's whole-pattern estimator does on the
-// same images (from the sites alone: every lit pixel is one), its file
-// round-trips, it never runs the network, and it is refused where the
-// sites are not the whole image.
+// same images (from the sites alone: every lit pixel is one), its input
+// envelope counts what it sees, its file round-trips, it never runs the
+// network, and it is refused where the sites are not the whole image.
 #include <gtest/gtest.h>
 
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/train/training_set.h"
 
 namespace dss {
 namespace {
@@ -57,6 +58,15 @@ TEST(PatternHead, MergedSpotsGetItAndItAnswersAsThePatternEstimator) {
     }
     EXPECT_EQ(predicted.back().active_sites, 0);
   }
+  // The input envelope is measured on what the head sees: every lit pixel,
+  // more than the 16384 sites a data set's own spec keeps (an envelope
+  // measured on those refused every image as out_of_distribution).
+  TrainingSet data(inputSpecFor(config));
+  for (const cv::Mat& image : images) data.add(image, 0.0, 0.0, 0);
+  const auto counts = data.siteCounts(model.meta.input.max_sites);
+  const auto predicted = model.predict(images);
+  for (std::size_t i = 0; i < images.size(); ++i) EXPECT_EQ(counts[i], predicted[i].active_sites) << i;
+  EXPECT_GT(counts[0], inputSpecFor(config).max_sites);
 }
 
 TEST(PatternHead, NeedsAnOnChipThreshold) {

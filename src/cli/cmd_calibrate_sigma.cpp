@@ -100,7 +100,8 @@ int runCalibrateSigma(int argc, char** argv) {
   const TrainingData data = readLabelledBags("calibrate-sigma", args.all("data"), sensor, {}, max_images);
   // The envelope recorded in training (which may have included anomalies)
   // widened to these images: it covers all the model has been fitted to.
-  const InputEnvelope envelope = covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts()));
+  const InputEnvelope envelope =
+      covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts(model.meta.input.max_sites)));
   std::optional<BiasCalibration> bias;
   if (max_degree) {
     bias = calibrateBias(model, data.samples, max_images ? max_images : data.samples.size(), *max_degree);

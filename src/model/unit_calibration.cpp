@@ -488,7 +488,8 @@ UnitCalibrationReport calibrateUnit(Model& model, const TrainingSet& data, const
   // thesis_sa unit 44 um off centre: read up to 0.5 deg off), which the
   // family's envelope refuses.
   std::vector<int> whole_counts;
-  for (const SparseSample* s : report.whole_spot_samples) whole_counts.push_back(data.siteCount(*s));
+  for (const SparseSample* s : report.whole_spot_samples)
+    whole_counts.push_back(data.siteCount(*s, model.meta.input.max_sites));
   if (!whole_counts.empty())
     recordInputEnvelope(model.meta, covering(inputEnvelopeOf(model.meta), measureInputEnvelope(whole_counts)));
   YAML::Node record = YAML::Load(report.toYaml());

@@ -333,7 +333,7 @@ void Trainer::saveModel(const std::string& path, const std::string& data_descrip
     // The level of the predicted sigma, fitted on the held-out images (on
     // this copy: the live network keeps training if the run goes on).
     calibrateSigma(best, m.validation, m.options.validation_max);
-    recordInputEnvelope(best.meta, measureInputEnvelope(m.train.siteCounts()));
+    recordInputEnvelope(best.meta, measureInputEnvelope(m.train.siteCounts(best.meta.input.max_sites)));
     out = best;
   }
   ::dss::saveModel(out, path);

@@ -33,14 +33,14 @@ void TrainingSet::add(SparseSample sample) {
   samples_.push_back(std::move(sample));
 }
 
-int TrainingSet::siteCount(const SparseSample& sample) const {
-  return static_cast<int>(std::min<std::size_t>(sample.pixels.size(), static_cast<std::size_t>(spec_.max_sites)));
+int TrainingSet::siteCount(const SparseSample& sample, int max_sites) const {
+  return static_cast<int>(std::min<std::size_t>(sample.pixels.size(), static_cast<std::size_t>(max_sites)));
 }
 
-std::vector<int> TrainingSet::siteCounts() const {
+std::vector<int> TrainingSet::siteCounts(int max_sites) const {
   std::vector<int> counts;
   counts.reserve(samples_.size());
-  for (const auto& s : samples_) counts.push_back(siteCount(s));
+  for (const auto& s : samples_) counts.push_back(siteCount(s, max_sites));
   return counts;
 }
 

@@ -34,10 +34,12 @@ class TrainingSet {
   const std::vector<SparseSample>& samples() const { return samples_; }
   std::size_t size() const { return samples_.size(); }
   std::size_t memoryBytes() const;
-  // Active sites a sample gives the network (its pixels, at most spec.max_sites).
-  int siteCount(const SparseSample& sample) const;
+  // Active sites a sample gives a model whose input keeps at most
+  // `max_sites` per image (its InputSpec's: the pattern head keeps every lit
+  // pixel, more than the data's own spec).
+  int siteCount(const SparseSample& sample, int max_sites) const;
   // The same for each sample.
-  std::vector<int> siteCounts() const;
+  std::vector<int> siteCounts(int max_sites) const;
 
   // Deterministic split: a seeded shuffle, the first `validation_fraction`
   // (at least one sample when there are two or more) goes to validation.
