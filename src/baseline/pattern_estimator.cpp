@@ -1,5 +1,8 @@
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
 
+#include <array>
+#include <cmath>
+#include <cstdio>
 #include <stdexcept>
 #include <string>
 
@@ -17,6 +20,7 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
       input_(inputSpecFor(config)),
       solver_(config),
       design_(SensorInstance::nominalOf(config)),
+      noise_(config, config.exposure.exposure_s),
       geometry_(MaskGeometry::nominalOf(config)) {
   const Eigen::Vector2d half(degToRad(config.fov.alpha_max_deg + kFieldMarginDeg),
                              degToRad(config.fov.beta_max_deg + kFieldMarginDeg));
@@ -47,16 +51,52 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
   if (count >= options.sigma_images / 2) sigma_scale_ = {std::sqrt(z2[0] / count), std::sqrt(z2[1] / count)};
 }
 
-double PatternEstimator::renderedMismatch(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const {
+AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen::Vector2d& here_rad,
+                                              const Eigen::Vector2d& there_rad) const {
   RenderOptions options;
   options.noise = false;
   options.anomalies = false;
-  const cv::Mat expected = design_.render(sunVectorFromAngles(angles_rad.x(), angles_rad.y()), 1, nullptr, options);
-  cv::Mat a, b;
-  image.convertTo(a, CV_64F);
-  expected.convertTo(b, CV_64F);
-  const cv::Mat difference = a - b;
-  return difference.dot(difference);
+  auto expected = [&](const Eigen::Vector2d& angles) {
+    cv::Mat out;
+    design_.render(sunVectorFromAngles(angles.x(), angles.y()), 1, nullptr, options).convertTo(out, CV_64F);
+    return out;
+  };
+  const cv::Mat here = expected(here_rad), there = expected(there_rad);
+  cv::Mat observed;
+  image.convertTo(observed, CV_64F);
+  // The log-likelihood ratio of the two places under Gaussian pixel noise
+  // (sum of (I - T)^2 / v - (I - H)^2 / v) and its variance under either,
+  // 4 sum (H - T)^2 / v; the chi^2 of each place over the pixels whose
+  // variance law holds there (clipping narrows it near either end).
+  double log_ratio = 0.0, log_ratio_variance = 0.0;
+  std::array<double, 2> chi2{0.0, 0.0};
+  std::array<int, 2> linear{0, 0};
+  for (int r = 0; r < observed.rows; ++r) {
+    const double* i = observed.ptr<double>(r);
+    const double* h = here.ptr<double>(r);
+    const double* t = there.ptr<double>(r);
+    for (int c = 0; c < observed.cols; ++c) {
+      const double rh = i[c] - h[c], rt = i[c] - t[c];
+      if (noise_.inLinearRange(h[c], kLinearRangeSigmas)) {
+        chi2[0] += rh * rh / noise_.varianceOfValue(h[c]);
+        ++linear[0];
+      }
+      if (noise_.inLinearRange(t[c], kLinearRangeSigmas)) {
+        chi2[1] += rt * rt / noise_.varianceOfValue(t[c]);
+        ++linear[1];
+      }
+      const double delta = h[c] - t[c];
+      if (delta == 0.0) continue;
+      const double v = noise_.varianceOfValue(0.5 * (h[c] + t[c]));
+      log_ratio += (rt * rt - rh * rh) / v;
+      log_ratio_variance += 4.0 * delta * delta / v;
+    }
+  }
+  AliasEvidence e;
+  if (log_ratio_variance > 0.0) e.z = log_ratio / std::sqrt(log_ratio_variance);
+  const int favoured = e.z >= 0.0 ? 0 : 1;
+  if (linear[favoured] > 0) e.unexplained_z = (chi2[favoured] - linear[favoured]) / std::sqrt(2.0 * linear[favoured]);
+  return e;
 }
 
 AngleWindow PatternEstimator::quadrantWindow(int quadrant) const {
@@ -115,12 +155,20 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   // each (its vignetting, obliquity and exposure at that angle, which the
   // template at normal incidence leaves out) says which one the image is.
   bool ambiguous = solution->alternative_cost_ratio < kAmbiguousCostRatio;
+  std::string why;
   if (ambiguous) {
-    const double here = renderedMismatch(image, solution->angles_rad);
-    const double there = renderedMismatch(image, solution->alternative_rad);
-    if (there > here * kRenderedCostRatio) {
+    const AliasEvidence evidence = aliasEvidence(image, solution->angles_rad, solution->alternative_rad);
+    char figures[160];
+    std::snprintf(figures, sizeof figures, " (likelihood ratio %.1f sigma, unexplained light chi^2 excess %.1f sigma)",
+                  evidence.z, evidence.unexplained_z);
+    why = (evidence.unexplained_z > AliasEvidence::kMaxUnexplainedZ
+               ? "light the design does not hold leaves the choice open between here and alpha "
+               : "the pattern fits about equally here and at alpha ") +
+          std::to_string(radToDeg(solution->alternative_rad.x())) + ", beta " +
+          std::to_string(radToDeg(solution->alternative_rad.y())) + " deg" + figures;
+    if (evidence.decides() && evidence.z > 0.0) {
       ambiguous = false;
-    } else if (here > there * kRenderedCostRatio) {
+    } else if (evidence.decides()) {
       const Eigen::Vector2d other = solution->alternative_rad;
       solution = solver_.refine(image, other);
       if (!solution) {
@@ -138,10 +186,7 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
   est.subfov_class = subFovClassOf(config_.subfov, geometry_, est.alpha_rad, est.beta_rad);
   if (ambiguous) {
-    est.status = status::withDetail(status::kAmbiguousAperture,
-                                    "the pattern fits equally at alpha " +
-                                        std::to_string(radToDeg(solution->alternative_rad.x())) + ", beta " +
-                                        std::to_string(radToDeg(solution->alternative_rad.y())) + " deg");
+    est.status = status::withDetail(status::kAmbiguousAperture, why);
     return est;
   }
   est.valid = cov.allFinite();

@@ -5,8 +5,10 @@
 // envelope (model/input_envelope) and, for a geometric head, its spot-mismatch
 // level and optionally the unit tolerances' sigma (model/unit_calibration),
 // and writes the model.
+#include <algorithm>
 #include <cmath>
 #include <iostream>
+#include <memory>
 #include <optional>
 
 #include "bag_reading.h"
@@ -19,6 +21,7 @@
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/bias_calibration.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
+#include "progress.h"
 
 namespace dss::cli {
 
@@ -102,14 +105,24 @@ int runCalibrateSigma(int argc, char** argv) {
   // widened to these images: it covers all the model has been fitted to.
   const InputEnvelope envelope =
       covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts(model.meta.input.max_sites)));
+  const std::size_t n = std::min<std::size_t>(max_images ? max_images : data.samples.size(), data.samples.size());
+  // The model's predictions on the images, once per fit: minutes for a large model.
+  auto progress_of = [](const std::string& label) -> SampleProgress {
+    auto bar = std::make_shared<std::unique_ptr<Progress>>();
+    return [bar, label](std::size_t done, std::size_t total) {
+      if (!*bar) *bar = std::make_unique<Progress>(label, total);
+      (*bar)->update(done);
+      if (done == total) (*bar)->finish();
+    };
+  };
   std::optional<BiasCalibration> bias;
   if (max_degree) {
-    bias = calibrateBias(model, data.samples, max_images ? max_images : data.samples.size(), *max_degree);
+    bias = calibrateBias(model, data.samples, n, *max_degree, false, progress_of("calibrate-sigma: correction"));
     std::cerr << "angle correction: degree " << bias->degree << " (cross-validated RMS "
               << bias->cross_validated_rms_deg[static_cast<std::size_t>(bias->degree + 1)] << " deg, none "
               << bias->cross_validated_rms_deg.front() << " deg; " << bias->outliers << " outliers left out)\n";
   }
-  const SigmaCalibration c = calibrateSigma(model, data.samples, max_images ? max_images : data.samples.size());
+  const SigmaCalibration c = calibrateSigma(model, data.samples, n, progress_of("calibrate-sigma: sigma"));
   std::optional<MismatchCalibration> mismatch;
   if (model.meta.arch.geometric_head) {
     try {

@@ -48,12 +48,10 @@ Eigen::MatrixXd fisherInformation(const cv::Mat& mean, const std::vector<cv::Mat
   return fisher;
 }
 
-CrlbCalculator::CrlbCalculator(const SensorConfig& config) {
+CrlbCalculator::CrlbCalculator(const SensorConfig& config) : noise_(config) {
   renderer_ = std::make_unique<Renderer>(SensorInstance::nominalOf(config));
   const auto& n = config.noise;
   const double step_e = n.adc_full_scale_e / config.maxCode();
-  constant_variance_e2_ = n.read_noise_e * n.read_noise_e + step_e * step_e / 12.0;
-  prnu_fraction_ = n.prnu_fraction;
   dark_e_per_s_ = n.darkCurrentAtTemperatureEPerS();
   if (config.threshold.enabled) {
     // Codes below the level read 0; code d holds signals from (d - 0.5 - black) / gain.
@@ -64,9 +62,7 @@ CrlbCalculator::CrlbCalculator(const SensorConfig& config) {
 
 CrlbCalculator::~CrlbCalculator() = default;
 
-double CrlbCalculator::pixelVariance(double mean_e) const {
-  return mean_e + constant_variance_e2_ + prnu_fraction_ * prnu_fraction_ * mean_e * mean_e;
-}
+double CrlbCalculator::pixelVariance(double mean_e) const { return noise_.varianceE2(mean_e); }
 
 Eigen::Matrix2d CrlbCalculator::covariance(double alpha_rad, double beta_rad) const {
   return bound(alpha_rad, beta_rad, false);

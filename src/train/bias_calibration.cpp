@@ -37,7 +37,7 @@ Eigen::MatrixXd fit(const Eigen::MatrixXd& basis, const Eigen::MatrixXd& errors,
 }  // namespace
 
 BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree,
-                              bool add_to_model_correction) {
+                              bool add_to_model_correction, const SampleProgress& progress) {
   if (max_degree < AngleCorrection::kNone || max_degree > AngleCorrection::kMaxDegree)
     throw std::invalid_argument("bias calibration: maximum degree " + std::to_string(max_degree) + " is outside " +
                                 std::to_string(AngleCorrection::kNone) + ".." +
@@ -45,7 +45,8 @@ BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t
   // The network's own bias is what is fitted, or what the model's correction leaves of it.
   const AngleCorrection base = add_to_model_correction ? model.meta.angle_correction : AngleCorrection{};
   model.meta.angle_correction = base;
-  const std::vector<HeldOutPrediction> held_out = predictHeldOut(model, data, max_samples, "bias calibration");
+  const std::vector<HeldOutPrediction> held_out =
+      predictHeldOut(model, data, max_samples, "bias calibration", progress);
   if (held_out.empty()) throw std::invalid_argument("bias calibration: the model found no sun in any sample");
 
   // Normalized estimates and errors; the outlier bound from the median error.

@@ -16,10 +16,10 @@ struct HeldOutPrediction {
 };
 
 // The model's predictions on at most `max_samples` evenly spaced samples of
-// `data`, leaving out those it answered "no sun". Throws std::invalid_argument,
-// prefixed with `what`, when `data` is empty or was not encoded with the
-// model's input spec.
+// `data`, leaving out those it answered "no sun", reporting (done, total)
+// to `progress` as it goes. Throws std::invalid_argument, prefixed with
+// `what`, when `data` is empty or was not encoded with the model's input spec.
 std::vector<HeldOutPrediction> predictHeldOut(const Model& model, const TrainingSet& data, std::size_t max_samples,
-                                              const std::string& what);
+                                              const std::string& what, const SampleProgress& progress = {});
 
 }  // namespace dss

@@ -12,7 +12,8 @@
 
 namespace dss {
 
-SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples) {
+SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples,
+                                const SampleProgress& progress) {
   model.meta.sigma_site_law = {};  // refitted below, from the head's (or the constant's) own sigma
   // A unit calibration's geometry sigma is not fitted here: on the images
   // the geometry was fitted to, its error is absent; on fresh ones it adds.
@@ -20,7 +21,7 @@ SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size
   model.meta.geometry_sigma_rad = {0.0, 0.0};
   std::vector<HeldOutPrediction> held_out;
   try {
-    held_out = predictHeldOut(model, data, max_samples, "sigma calibration");
+    held_out = predictHeldOut(model, data, max_samples, "sigma calibration", progress);
   } catch (...) {
     model.meta.geometry_sigma_rad = geometry_sigma;
     throw;

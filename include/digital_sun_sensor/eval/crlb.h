@@ -18,6 +18,7 @@
 #include <opencv2/core.hpp>
 #include <vector>
 
+#include "digital_sun_sensor/sim/pixel_noise.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
@@ -51,8 +52,7 @@ class CrlbCalculator {
 
  private:
   std::unique_ptr<Renderer> renderer_;
-  double constant_variance_e2_ = 0.0;
-  double prnu_fraction_ = 0.0;
+  PixelNoise noise_;  // without dark current: that depends on the exposure
   double dark_e_per_s_ = 0.0;
   double threshold_e_ = -std::numeric_limits<double>::infinity();  // lowest kept signal, before dark current
 

@@ -34,8 +34,9 @@ struct BiasCalibration {
 // (a unit's refit on a few images on top of its family's wide-field
 // correction; `degree` is then the added part's). Throws
 // std::invalid_argument for a bad degree, empty data or another input spec.
+// `progress` follows the model's predictions on the samples.
 BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree,
-                              bool add_to_model_correction = false);
+                              bool add_to_model_correction = false, const SampleProgress& progress = {});
 
 // Geometric head: fits how the model's angle correction changes with the
 // mask height (ModelMetadata::height_corrections) on images of the design

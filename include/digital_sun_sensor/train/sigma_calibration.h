@@ -37,8 +37,10 @@ struct SigmaCalibration {
 // records them in the model's metrics. Under a dihedral inference symmetry
 // both axes get one factor (or constant), fitted on both axes' errors: the
 // averaged variances mix the head's two outputs. Throws std::invalid_argument when
-// `data` is empty or its spec differs from the model's.
-SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples);
+// `data` is empty or its spec differs from the model's. `progress` follows
+// the model's predictions on the samples.
+SigmaCalibration calibrateSigma(Model& model, const TrainingSet& data, std::size_t max_samples,
+                                const SampleProgress& progress = {});
 
 // The same, applied only where the model's sigma holds fewer than
 // `min_coverage` of the errors within 1 sigma on either axis (a built unit

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
@@ -11,6 +12,9 @@
 #include "digital_sun_sensor/model/input_spec.h"
 
 namespace dss {
+
+// (done, total) samples of a long pass over a training set, for a progress line.
+using SampleProgress = std::function<void(std::size_t, std::size_t)>;
 
 struct SparseSample {
   std::vector<std::uint32_t> pixels;  // (y << 16) | x, row-major order
