@@ -139,6 +139,28 @@ TEST_F(PatternSolveTest, AliasChoiceIsDeclinedWhereLightTheDesignLacksCouldTipIt
   EXPECT_TRUE(estimator.estimateOne(clean).valid);
 }
 
+// Where no alias competes, a ghost still biases the solve beyond its
+// sigma: the answer is declined model_mismatch when the image holds light
+// the design's image at the answer does not; the same unit without the
+// ghost is answered.
+TEST_F(PatternSolveTest, AnswerIsDeclinedWhereLightTheDesignLacksRemains) {
+  SensorConfig ghostly = *config_;
+  ghostly.anomalies.ghost_probability = 1.0;
+  const Renderer without_ghost(SensorInstance::draw(*config_, 7)), with_ghost(SensorInstance::draw(ghostly, 7));
+  const PatternEstimator estimator(*config_, kNoSigmaImages);
+  const Eigen::Vector2d truth(degToRad(0.6), degToRad(2.0));
+  const Eigen::Vector3d sun = sunVectorFromAngles(truth.x(), truth.y());
+  const cv::Mat clean = without_ghost.render(sun, 9, nullptr), ghosted = with_ghost.render(sun, 9, nullptr);
+  EXPECT_LT(estimator.unexplainedLightZ(clean, truth), AliasEvidence::kMaxUnexplainedZ);
+  EXPECT_GT(estimator.unexplainedLightZ(ghosted, truth), AliasEvidence::kMaxUnexplainedZ);
+  const SunEstimate answered = estimator.estimateOne(clean);
+  ASSERT_TRUE(answered.valid) << answered.status;
+  EXPECT_NEAR(radToDeg(answered.alpha_rad), 0.6, 2e-3);
+  const SunEstimate declined = estimator.estimateOne(ghosted);
+  EXPECT_FALSE(declined.valid);
+  EXPECT_EQ(status::statusCode(declined.status), status::kModelMismatch) << declined.status;
+}
+
 // The solve's sigma takes the residual as independent pixel noise; on the
 // design's own noisy images the errors are larger than that (the
 // template's error is correlated over the pattern): the scale measured at

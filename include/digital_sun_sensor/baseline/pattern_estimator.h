@@ -4,7 +4,10 @@
 // calibration. Where the pattern repeats within the field, an image that
 // fits two places about equally is decided by the design's rendered image
 // at each; if that cannot tell them apart either, it is answered
-// ambiguous_aperture, with the better fit's angles.
+// ambiguous_aperture, with the better fit's angles. An answer whose image
+// holds light the design does not (a ghost, stray light: its chi^2 excess,
+// AliasEvidence::unexplained_z, above kMaxUnexplainedZ) is declined
+// model_mismatch: such light biases the solve beyond its sigma.
 #pragma once
 
 #include <array>
@@ -77,10 +80,17 @@ class PatternEstimator : public SunEstimator {
   // The image at `here` against `there` (exposure and threshold as the sensor's).
   AliasEvidence aliasEvidence(const cv::Mat& image, const Eigen::Vector2d& here_rad,
                               const Eigen::Vector2d& there_rad) const;
+  // The image's chi^2 excess over the design's image at these angles, (chi^2 - n) / sqrt(2n)
+  // over the n pixels inside the readout's linear range (AliasEvidence::unexplained_z).
+  double unexplainedLightZ(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const;
   // What multiplies the solve's sigma per axis (PatternEstimatorOptions).
   const std::array<double, 2>& sigmaScale() const { return sigma_scale_; }
 
  private:
+  // The design's noise-free image [CV_64F] and an image's excess over one (both CV_64F).
+  cv::Mat designImage(const Eigen::Vector2d& angles_rad) const;
+  double unexplainedLightZ(const cv::Mat& observed, const cv::Mat& expected) const;
+
   SensorConfig config_;
   InputSpec input_;
   PatternSolver solver_;
