@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <utility>
 
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
 #include "digital_sun_sensor/baseline/pattern_solve.h"
@@ -41,6 +42,15 @@ class PatternSolveTest : public ::testing::Test {
     delete renderer_;
     delete solver_;
     delete config_;
+  }
+  // A drawn unit of the design (its pixels' gain and dark spread) at `truth`,
+  // without and with a ghost, the same noise seed.
+  static std::pair<cv::Mat, cv::Mat> withAndWithoutGhost(const Eigen::Vector2d& truth, std::uint64_t seed) {
+    SensorConfig ghostly = *config_;
+    ghostly.anomalies.ghost_probability = 1.0;
+    const Renderer without_ghost(SensorInstance::draw(*config_, 7)), with_ghost(SensorInstance::draw(ghostly, 7));
+    const Eigen::Vector3d sun = sunVectorFromAngles(truth.x(), truth.y());
+    return {without_ghost.render(sun, seed, nullptr), with_ghost.render(sun, seed, nullptr)};
   }
   static SensorConfig* config_;
   static PatternSolver* solver_;
@@ -112,14 +122,9 @@ TEST_F(PatternSolveTest, RepeatingPatternIsDecidedByTheDesignsImageOrTheQuadrant
 // design explains: with the ghost, the chi^2 excess declines it; the same
 // image without the ghost (same noise seed) is decided.
 TEST_F(PatternSolveTest, AliasChoiceIsDeclinedWhereLightTheDesignLacksCouldTipIt) {
-  // A drawn unit of the design (its pixels' gain and dark spread), with and without the ghost.
-  SensorConfig ghostly = *config_;
-  ghostly.anomalies.ghost_probability = 1.0;
-  const Renderer without_ghost(SensorInstance::draw(*config_, 7)), with_ghost(SensorInstance::draw(ghostly, 7));
   const PatternEstimator estimator(*config_, kNoSigmaImages);
   const Eigen::Vector2d truth(degToRad(-3.0), degToRad(1.0));
-  const Eigen::Vector3d sun = sunVectorFromAngles(truth.x(), truth.y());
-  const cv::Mat clean = without_ghost.render(sun, 5, nullptr), ghosted = with_ghost.render(sun, 5, nullptr);
+  const auto [clean, ghosted] = withAndWithoutGhost(truth, 5);
   ASSERT_GT(cv::norm(clean, ghosted, cv::NORM_L1), 0.0);
   const auto s = solver_->solve(ghosted);
   ASSERT_TRUE(s);
@@ -144,13 +149,9 @@ TEST_F(PatternSolveTest, AliasChoiceIsDeclinedWhereLightTheDesignLacksCouldTipIt
 // the design's image at the answer does not; the same unit without the
 // ghost is answered.
 TEST_F(PatternSolveTest, AnswerIsDeclinedWhereLightTheDesignLacksRemains) {
-  SensorConfig ghostly = *config_;
-  ghostly.anomalies.ghost_probability = 1.0;
-  const Renderer without_ghost(SensorInstance::draw(*config_, 7)), with_ghost(SensorInstance::draw(ghostly, 7));
   const PatternEstimator estimator(*config_, kNoSigmaImages);
   const Eigen::Vector2d truth(degToRad(0.6), degToRad(2.0));
-  const Eigen::Vector3d sun = sunVectorFromAngles(truth.x(), truth.y());
-  const cv::Mat clean = without_ghost.render(sun, 9, nullptr), ghosted = with_ghost.render(sun, 9, nullptr);
+  const auto [clean, ghosted] = withAndWithoutGhost(truth, 9);
   EXPECT_LT(estimator.unexplainedLightZ(clean, truth), AliasEvidence::kMaxUnexplainedZ);
   EXPECT_GT(estimator.unexplainedLightZ(ghosted, truth), AliasEvidence::kMaxUnexplainedZ);
   const SunEstimate answered = estimator.estimateOne(clean);

@@ -165,22 +165,12 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   // each (its vignetting, obliquity and exposure at that angle, which the
   // template at normal incidence leaves out) says which one the image is.
   bool ambiguous = solution->alternative_cost_ratio < kAmbiguousCostRatio;
-  std::string why;
-  std::optional<double> unexplained_z;  // of the answer's place, where an alias decision measured it
+  std::optional<AliasEvidence> evidence;  // its unexplained_z is the answer's place's
   if (ambiguous) {
-    const AliasEvidence evidence = aliasEvidence(image, solution->angles_rad, solution->alternative_rad);
-    char figures[160];
-    std::snprintf(figures, sizeof figures, " (likelihood ratio %.1f sigma, unexplained light chi^2 excess %.1f sigma)",
-                  evidence.z, evidence.unexplained_z);
-    why = (evidence.unexplained_z > AliasEvidence::kMaxUnexplainedZ
-               ? "light the design does not hold leaves the choice open between here and alpha "
-               : "the pattern fits about equally here and at alpha ") +
-          std::to_string(radToDeg(solution->alternative_rad.x())) + ", beta " +
-          std::to_string(radToDeg(solution->alternative_rad.y())) + " deg" + figures;
-    unexplained_z = evidence.unexplained_z;
-    if (evidence.decides() && evidence.z > 0.0) {
+    evidence = aliasEvidence(image, solution->angles_rad, solution->alternative_rad);
+    if (evidence->decides() && evidence->z > 0.0) {
       ambiguous = false;
-    } else if (evidence.decides()) {
+    } else if (evidence->decides()) {
       const Eigen::Vector2d other = solution->alternative_rad;
       solution = solver_.refine(image, other);
       if (!solution) {
@@ -198,17 +188,26 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
   est.subfov_class = subFovClassOf(config_.subfov, geometry_, est.alpha_rad, est.beta_rad);
   if (ambiguous) {
-    est.status = status::withDetail(status::kAmbiguousAperture, why);
+    char figures[160];
+    std::snprintf(figures, sizeof figures, " (likelihood ratio %.1f sigma, unexplained light chi^2 excess %.1f sigma)",
+                  evidence->z, evidence->unexplained_z);
+    est.status =
+        status::withDetail(status::kAmbiguousAperture,
+                           (evidence->unexplained_z > AliasEvidence::kMaxUnexplainedZ
+                                ? "light the design does not hold leaves the choice open between here and alpha "
+                                : "the pattern fits about equally here and at alpha ") +
+                               std::to_string(radToDeg(solution->alternative_rad.x())) + ", beta " +
+                               std::to_string(radToDeg(solution->alternative_rad.y())) + " deg" + figures);
     return est;
   }
   // Light the design does not hold (a ghost, stray light, debris) biases
   // the solve by more than its sigma says: on thesis_ca's ghost images an
   // excess above 5 held 27 % of the errors within 1 sigma; on nominal ones
   // it stayed below 3.
-  if (!unexplained_z) unexplained_z = unexplainedLightZ(image, solution->angles_rad);
-  if (*unexplained_z > AliasEvidence::kMaxUnexplainedZ) {
+  const double unexplained_z = evidence ? evidence->unexplained_z : unexplainedLightZ(image, solution->angles_rad);
+  if (unexplained_z > AliasEvidence::kMaxUnexplainedZ) {
     char figure[32];
-    std::snprintf(figure, sizeof figure, "%.1f", *unexplained_z);
+    std::snprintf(figure, sizeof figure, "%.1f", unexplained_z);
     est.status =
         status::withDetail(status::kModelMismatch, std::string("light the design does not hold (chi^2 excess ") +
                                                        figure + " sigma) may bias the estimate");

@@ -8,7 +8,6 @@
 #include <algorithm>
 #include <cmath>
 #include <iostream>
-#include <memory>
 #include <optional>
 
 #include "bag_reading.h"
@@ -107,22 +106,20 @@ int runCalibrateSigma(int argc, char** argv) {
       covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts(model.meta.input.max_sites)));
   const std::size_t n = std::min<std::size_t>(max_images ? max_images : data.samples.size(), data.samples.size());
   // The model's predictions on the images, once per fit: minutes for a large model.
-  auto progress_of = [](const std::string& label) -> SampleProgress {
-    auto bar = std::make_shared<std::unique_ptr<Progress>>();
-    return [bar, label](std::size_t done, std::size_t total) {
-      if (!*bar) *bar = std::make_unique<Progress>(label, total);
-      (*bar)->update(done);
-      if (done == total) (*bar)->finish();
-    };
-  };
   std::optional<BiasCalibration> bias;
   if (max_degree) {
-    bias = calibrateBias(model, data.samples, n, *max_degree, false, progress_of("calibrate-sigma: correction"));
+    Progress bar("calibrate-sigma: correction", n);
+    bias = calibrateBias(model, data.samples, n, *max_degree, false,
+                         [&](std::size_t done, std::size_t) { bar.update(done); });
+    bar.finish();
     std::cerr << "angle correction: degree " << bias->degree << " (cross-validated RMS "
               << bias->cross_validated_rms_deg[static_cast<std::size_t>(bias->degree + 1)] << " deg, none "
               << bias->cross_validated_rms_deg.front() << " deg; " << bias->outliers << " outliers left out)\n";
   }
-  const SigmaCalibration c = calibrateSigma(model, data.samples, n, progress_of("calibrate-sigma: sigma"));
+  Progress sigma_bar("calibrate-sigma: sigma", n);
+  const SigmaCalibration c =
+      calibrateSigma(model, data.samples, n, [&](std::size_t done, std::size_t) { sigma_bar.update(done); });
+  sigma_bar.finish();
   std::optional<MismatchCalibration> mismatch;
   if (model.meta.arch.geometric_head) {
     try {
