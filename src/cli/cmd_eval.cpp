@@ -16,15 +16,16 @@
 namespace dss::cli {
 namespace {
 
-// Bounds for up to `max_samples` evenly spaced valid estimates, on `threads` threads.
+// Bounds on up to `max_samples` evenly spaced images, those of them with a
+// valid estimate, on `threads` threads. The spacing runs over every image,
+// not over the valid ones, so that two estimators evaluated on the same bag
+// are held to bounds on the same images (less the ones each declines).
 void computeBounds(std::vector<EvalRecord>& records, const SensorConfig& config, std::size_t max_samples, int threads) {
-  std::vector<std::size_t> valid;
-  for (std::size_t i = 0; i < records.size(); ++i)
-    if (records[i].estimate.valid) valid.push_back(i);
-  if (max_samples == 0 || valid.empty()) return;
-  const std::size_t stride = std::max<std::size_t>(1, (valid.size() + max_samples - 1) / max_samples);
+  if (max_samples == 0 || records.empty()) return;
+  const std::size_t stride = std::max<std::size_t>(1, (records.size() + max_samples - 1) / max_samples);
   std::vector<std::size_t> picked;
-  for (std::size_t i = 0; i < valid.size(); i += stride) picked.push_back(valid[i]);
+  for (std::size_t i = 0; i < records.size(); i += stride)
+    if (records[i].estimate.valid) picked.push_back(i);
   const CrlbCalculator crlb(config);
   Progress progress("eval: crlb", picked.size());
   std::atomic<std::size_t> next{0}, done{0};
@@ -83,7 +84,8 @@ int runEval(int argc, char** argv) {
                  "a coarse sun sensor's quadrant): the pattern estimator, on a mask whose pattern repeats within "
                  "the field",
                  "", false, false},
-                {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images (0: skip)", "200", false, false},
+                {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images, those answered (0: skip)", "200",
+                 false, false},
                 {"batch", "B", "images per estimator call", "16", false, false},
                 {"max-images", "N", "evaluate at most N images (0: all)", "0", false, false},
                 {"threads", "T", "threads for the bound", threads, false, false},
