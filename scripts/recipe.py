@@ -1,7 +1,9 @@
 #!/usr/bin/python3
 """Reads a shipped model's recipe (config/recipes/<model>.yaml) and prints it as
 bash assignments for scripts/train_models.sh. Every key is checked: an unknown
-or missing one is an error naming the file and the key.
+or missing one is an error naming the file and the key. With --height-sets
+SENSOR.yaml CHANGE_UM it prints the dss --set options of the sensor's design
+with its mask CHANGE_UM um higher (as calibrate_height below makes its bags).
 
 Keys:
   sensor            config/sensors/<sensor>.yaml
@@ -11,12 +13,20 @@ Keys:
                     and the bag is DATA/<model>.<name>.bag
   train             {arch, epochs, lr, seed, centroid_weighting, feature_corrections,
                     [lattice_phase], [head]}: dss train options
-  calibrate_sigma   {correction_degree: keep|none|D, symmetry: keep|none|flips|dihedral}
-  baseline          centroid (default: dss calibrate on the first training bag) or pattern (the
-                    whole-pattern estimator of the sensor's design, for masks whose spots merge)
+  calibrate_sigma   {correction_degree: keep|none|D, symmetry: keep|none|flips|dihedral,
+                    [unit_tolerances: K]}: K (geometric head) adds the error of a unit built to
+                    K x typical tolerances to sigma, for a family model that units are calibrated from
+  calibrate_height  {changes_um: [H, ...], count, seed} (optional, geometric head): per H, COUNT
+                    images of the design with its mask H um higher (lower: the cover glass, if
+                    thicker, as thick as the mask is high), seeds SEED, SEED + 1, ...; dss
+                    calibrate-height fits how the angle correction changes with the height
+  baseline          centroid (default: dss calibrate on the first training bag), pattern (the
+                    whole-pattern estimator of the sensor's design, for masks whose spots merge) or
+                    none (a family model: the sensor's own recipe ships its baseline)
   headline          {alpha_mean_deg, beta_mean_deg}: the model's mean error on the test bag,
                     which test/test_shipped_models.cpp pins (not printed)
 """
+import os
 import shlex
 import sys
 
@@ -45,25 +55,65 @@ def bag(path, where, node):
                      ("anomalies", "none")))
 
 
+def height_sets(sensor_path, change_um, fail_with):
+    """The --set overrides of the sensor's design with its mask change_um higher (lower: a cover glass
+    thicker than the mask is then high is thinned to it: the mask rests on it)."""
+    try:
+        with open(sensor_path) as f:
+            sensor = yaml.safe_load(f)
+        height_mm = float(sensor["mask"]["height_mm"])
+        glass = sensor.get("cover_glass") or {}
+        thickness_mm = float(glass["thickness_mm"]) if glass.get("enabled") else 0.0
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as e:
+        fail_with("%s: %s" % (sensor_path, e))
+    height = height_mm + change_um / 1000.0
+    if height <= 0:
+        fail_with("a change of %g um leaves no mask height" % change_um)
+    sets = ["mask.height_mm=%.6f" % height]
+    if thickness_mm > height:
+        sets.append("cover_glass.thickness_mm=%.6f" % height)
+    return sets
+
+
+def height_bags(path, node, sensor_path):
+    """CHANGE_UM=BAG entries: BAG as bag() prints it, with its --set overrides after a seventh colon."""
+    check(path, "calibrate_height", node, ("changes_um", "count", "seed"))
+    entries = []
+    for k, change in enumerate(node["changes_um"]):
+        where = "calibrate_height.changes_um[%d]" % k
+        if not isinstance(change, (int, float)) or change == 0:
+            fail(path, where, "must be a non-zero number of um")
+        sets = height_sets(sensor_path, change, lambda why: fail(path, where, why))
+        spec = bag(path, "calibrate_height", {"name": "height%g" % change, "count": node["count"],
+                                              "seed": node["seed"] + k})
+        entries.append("%g=%s:%s" % (change, spec, ",".join(sets)))
+    return " ".join(entries)
+
+
 def main():
+    if len(sys.argv) == 4 and sys.argv[1] == "--height-sets":  # for scripts/unit_tables.sh
+        sets = height_sets(sys.argv[2], float(sys.argv[3]), sys.exit)
+        print(" ".join("--set " + s for s in sets))
+        return
     if len(sys.argv) != 2:
-        sys.exit("usage: recipe.py config/recipes/<model>.yaml")
+        sys.exit("usage: recipe.py config/recipes/<model>.yaml | recipe.py --height-sets SENSOR.yaml CHANGE_UM")
     path = sys.argv[1]
     try:
         with open(path) as f:
             recipe = yaml.safe_load(f)
     except (OSError, yaml.YAMLError) as e:
         sys.exit("%s: %s" % (path, e))
-    check(path, "", recipe, ("sensor", "bags", "train", "calibrate_sigma", "headline"), ("set", "baseline"))
-    if recipe.get("baseline", "centroid") not in ("centroid", "pattern"):
-        fail(path, "baseline", "must be centroid or pattern")
+    check(path, "", recipe, ("sensor", "bags", "train", "calibrate_sigma", "headline"),
+          ("set", "baseline", "calibrate_height"))
+    if recipe.get("baseline", "centroid") not in ("centroid", "pattern", "none"):
+        fail(path, "baseline", "must be centroid, pattern or none")
     check(path, "headline", recipe["headline"], ("alpha_mean_deg", "beta_mean_deg"))
     check(path, "bags", recipe["bags"], ("train", "test", "sigma"))
     train = recipe["train"]
     check(path, "train", train, ("arch", "epochs", "lr", "seed", "centroid_weighting", "feature_corrections"),
           ("lattice_phase", "head"))
     sigma = recipe["calibrate_sigma"]
-    check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"))
+    check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"), ("unit_tolerances",))
     out = {
         "SENSOR": str(recipe["sensor"]),
         "SETS": " ".join(str(s) for s in recipe.get("set", [])),
@@ -80,7 +130,10 @@ def main():
         "HEAD": str(train.get("head", "")),
         "CORRECTION": str(sigma["correction_degree"]),
         "SYMMETRY": str(sigma["symmetry"]),
+        "UNIT_TOLERANCES": str(sigma.get("unit_tolerances", "keep")),
         "BASELINE": str(recipe.get("baseline", "centroid")),
+        "HEIGHT_BAGS": height_bags(path, recipe["calibrate_height"], "%s/../sensors/%s.yaml" % (
+            os.path.dirname(os.path.abspath(path)), recipe["sensor"])) if "calibrate_height" in recipe else "",
     }
     for key, value in out.items():
         print("%s=%s" % (key, shlex.quote(value)))

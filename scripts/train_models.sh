@@ -18,12 +18,13 @@ DATA="${DATA_DIR:-$WS/models_data}"
 MODELS="${MODELS_DIR:-$ROOT/models}"
 mkdir -p "$DATA" "$MODELS"
 
-# make_bag MODEL NAME:COUNT:SEED:OFFSET:SAMPLING:ANOMALIES -> prints the bag's path (generated if missing)
+# make_bag MODEL NAME:COUNT:SEED:OFFSET:SAMPLING:ANOMALIES[:SET,...] -> prints the bag's path (generated if
+# missing; SET: --set overrides of this bag, after the recipe's)
 make_bag() {
-  local model="$1" name count seed offset sampling anomalies
-  IFS=: read -r name count seed offset sampling anomalies <<<"$2"
+  local model="$1" name count seed offset sampling anomalies bag_sets
+  IFS=: read -r name count seed offset sampling anomalies bag_sets <<<"$2"
   local bag="$DATA/$model.$name.bag" sets=()
-  for s in $SETS; do sets+=(--set "$s"); done
+  for s in $SETS ${bag_sets//,/ }; do sets+=(--set "$s"); done
   [ -f "$bag" ] || "$DSS" generate --sensor "$ROOT/config/sensors/$SENSOR.yaml" "${sets[@]}" --count "$count" \
     --seed "$seed" --offset "$offset" --sampling "$sampling" --anomalies "$anomalies" --out "$bag" >&2
   echo "$bag"
@@ -42,6 +43,9 @@ for model in "${models[@]}"; do
   for b in $TRAIN_BAGS; do train="$train $(make_bag "$model" "$b")"; done
   for b in $SIGMA_BAGS; do sigma="$sigma $(make_bag "$model" "$b")"; done
   test="$(make_bag "$model" "$TEST_BAG")"
+  heights=""
+  for h in $HEIGHT_BAGS; do heights="$heights ${h%%=*}=$(make_bag "$model" "${h#*=}")"; done
+  HEIGHT_BAGS="${heights# }"
   phase=()
   [ -n "$LATTICE_PHASE" ] && phase=(--lattice-phase "$LATTICE_PHASE")
   [ -n "$HEAD" ] && phase+=(--head "$HEAD")

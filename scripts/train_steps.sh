@@ -8,11 +8,17 @@
 # (calibrate-sigma --correction-degree CORRECTION: a maximum degree, or keep)
 # and its sigma on all images of the sigma bags; with a SYMMETRY other than
 # keep (flips, dihedral), sets the model's inference symmetry and refits its
-# sigma on the same bags; evaluates it on the test bag, then calibrates the
+# sigma on the same bags; with HEIGHT_BAGS (a geometric-head family model:
+# CHANGE_UM=BAG ..., images of the design with its mask moved by CHANGE_UM)
+# fits how the angle correction changes with the mask height (calibrate-height);
+# with UNIT_TOLERANCES=K (a family model) adds the error of a unit built to
+# K x typical tolerances to its sigma (calibrate-sigma --unit-tolerances);
+# evaluates it on the test bag, then calibrates the
 # centroid baseline on the first 1000 images of the first training bag
 # (MODELS/NAME.calib.yaml) and evaluates it on the same test bag; with
 # BASELINE=pattern (a mask whose spots merge, no spot to calibrate on) the
-# baseline is the whole-pattern estimator of config/sensors/$SENSOR.yaml.
+# baseline is the whole-pattern estimator of config/sensors/$SENSOR.yaml; with
+# BASELINE=none (a family model) there is none.
 # Results: DATA/NAME.*.json and .csv.
 train_and_evaluate() {
   local name="$1" test="$3" epochs="$5" arch="$6" correction="$7" symmetry="$8"
@@ -38,8 +44,18 @@ train_and_evaluate() {
       "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
         --symmetry "$symmetry" | tee "$DATA/$name.symmetry.json"
     fi
+    local entry
+    for entry in ${HEIGHT_BAGS:-}; do
+      "$DSS" calibrate-height --model "$model" --data "${entry#*=}" --height-change-um "${entry%%=*}" --out "$model" \
+        | tee -a "$DATA/$name.height.json"
+    done
+    if [ "${UNIT_TOLERANCES:-keep}" != keep ]; then
+      "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
+        --unit-tolerances "$UNIT_TOLERANCES" | tee "$DATA/$name.tolerances.json"
+    fi
   fi
   "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$name.sscnn.csv" | tee "$DATA/$name.sscnn.json"
+  [ "${BASELINE:-centroid}" = none ] && return
   if [ "${BASELINE:-centroid}" = pattern ]; then
     "$DSS" eval --data "$test" --estimator "pattern:$ROOT/config/sensors/$SENSOR.yaml" \
       --csv "$DATA/$name.pattern.csv" | tee "$DATA/$name.pattern.json"

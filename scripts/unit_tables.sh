@@ -98,17 +98,9 @@ family() {
     cp $F.design.dssmodel $F.family.dssmodel.tmp
     for h in $HEIGHT_CHANGES_UM; do
       k=$((k + 1))
-      [ -f $F.height$h.bag ] || quiet "$DSS" generate --sensor $F.yaml $(/usr/bin/python3 - $F.yaml "$h" <<'PY'
-import sys, yaml
-c, h = yaml.safe_load(open(sys.argv[1])), float(sys.argv[2])
-height = c["mask"]["height_mm"] + h / 1000
-sets = ["mask.height_mm=%.6f" % height]
-glass = c.get("cover_glass", {})
-if glass.get("enabled") and glass["thickness_mm"] > height:  # a lower mask rests on a thinner window
-    sets.append("cover_glass.thickness_mm=%.6f" % height)
-print(" ".join("--set " + s for s in sets))
-PY
-) --count 2000 --seed $((SEEDS[0] + 119 + k)) --out $F.height$h.bag  # wide_ma: 9921-9928
+      [ -f $F.height$h.bag ] || quiet "$DSS" generate --sensor $F.yaml \
+        $(/usr/bin/python3 "$ROOT/scripts/recipe.py" --height-sets $F.yaml "$h") --count 2000 \
+        --seed $((SEEDS[0] + 119 + k)) --out $F.height$h.bag  # wide_ma: 9921-9928
       quiet "$DSS" calibrate-height --model $F.family.dssmodel.tmp --data $F.height$h.bag --height-change-um "$h" \
         --out $F.family.dssmodel.tmp
     done

@@ -1,6 +1,7 @@
 // The dss command line end to end. generate: bags that rosbag reads,
 // identical for the same seed, clear errors for bad arguments and configs, no
 // partial files left. bench infer/train: one JSON line with every figure.
+// calibrate-unit: a drawn unit calibrated from the shipped family model.
 #include <digital_sun_sensor/SpotCentres.h>
 #include <digital_sun_sensor/SunAngles.h>
 #include <geometry_msgs/Vector3Stamped.h>
@@ -19,6 +20,7 @@
 #include <functional>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/ros/bag_io.h"
@@ -202,7 +204,80 @@ TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
   EXPECT_GT(jsonNumber(line, "crlb_ratio"), 1.0) << line;        // nothing beats the bound
   const std::string rows = slurp(csv);
   EXPECT_EQ(std::count(rows.begin(), rows.end(), '\n'), 31);
+  // The bound on every 6th image (30 images, 5 samples), the answered ones
+  // among them: the same images whichever estimator runs.
+  std::istringstream lines(rows);
+  std::string row;
+  std::getline(lines, row);  // header
+  int bounded = 0, answered_picks = 0;
+  for (int index = 0; std::getline(lines, row); ++index) {
+    std::vector<std::string> fields;
+    std::istringstream cells(row);
+    for (std::string cell; std::getline(cells, cell, ',');) fields.push_back(cell);
+    ASSERT_GE(fields.size(), 16u) << row;  // a status detail may hold commas
+    const bool has_bound = fields[fields.size() - 2] != "nan";
+    bounded += has_bound;
+    answered_picks += index % 6 == 0 && fields[10] == "1";
+    if (has_bound) {
+      EXPECT_EQ(index % 6, 0) << row;
+    }
+  }
+  EXPECT_EQ(bounded, answered_picks);
+  EXPECT_EQ(jsonNumber(line, "crlb_samples"), bounded);
   for (const auto& f : {cal, test, calib, csv}) std::remove(f.c_str());
+}
+
+// What a user does with a built thesis_ma unit and the shipped family model:
+// uncalibrated, every estimate is flagged model_mismatch or holds its error
+// within 3 sigma; calibrated from 25 lab images (dss calibrate-unit), it
+// comes back near the family model's accuracy on the design (0.000511 deg on
+// 2000 images). The unit (seed 9616) is one no figure was tuned on.
+TEST(CalibrateUnit, ShippedFamilyModelCalibratesADrawnUnit) {
+  const std::string lab = tmp("unit_lab.bag"), test = tmp("unit_test.bag"), unit = tmp("unit.dssmodel"),
+                    csv = tmp("unit.csv");
+  const std::string family = std::string(DSS_SOURCE_DIR) + "/models/thesis_ma_family.dssmodel";
+  const std::string draw = "generate --sensor " + std::string(DSS_SOURCE_DIR) +
+                           "/config/sensors/thesis_ma.yaml --anomalies as_built=1 "
+                           "--set as_built.aperture_diameter_sigma_um=0 --seed 9616";
+  ASSERT_EQ(run(draw + " --count 25 --out " + lab).code, 0);
+  ASSERT_EQ(run(draw + " --count 100 --offset 100000 --out " + test).code, 0);
+
+  auto r = run("eval --data " + test + " --estimator sscnn:" + family + " --crlb-samples 0 --csv " + csv);
+  ASSERT_EQ(r.code, 0) << r.output;
+  std::istringstream rows(slurp(csv));
+  std::string row;
+  std::getline(rows, row);  // header
+  int images = 0, flagged = 0, within_3_sigma = 0;
+  while (std::getline(rows, row)) {
+    ++images;
+    if (row.find("model_mismatch") != std::string::npos) {
+      ++flagged;
+      continue;
+    }
+    std::istringstream fields(row);
+    std::array<double, 10> v{};
+    for (double& x : v) {
+      std::string field;
+      std::getline(fields, field, ',');
+      x = std::stod(field);
+    }
+    within_3_sigma += std::abs(v[6]) <= 3.0 * v[8] && std::abs(v[7]) <= 3.0 * v[9];
+  }
+  std::printf("uncalibrated unit: %d of %d images flagged model_mismatch, %d others within 3 sigma\n", flagged, images,
+              within_3_sigma);
+  EXPECT_EQ(images, 100);
+  EXPECT_GE(flagged + within_3_sigma, 95);
+
+  r = run("calibrate-unit --model " + family + " --data " + lab + " --out " + unit);
+  ASSERT_EQ(r.code, 0) << r.output;
+  r = run("eval --data " + test + " --estimator sscnn:" + unit + " --crlb-samples 0");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::string line = lastLine(r.output, "{\"estimator\"");
+  std::printf("calibrated from 25 images: %s\n", line.c_str());
+  EXPECT_GE(jsonNumber(line, "valid_rate"), 0.95) << line;
+  EXPECT_LT(jsonNumber(line, "alpha_mean_deg"), 1.3 * 0.000511) << line;
+  EXPECT_LT(jsonNumber(line, "beta_mean_deg"), 1.3 * 0.000519) << line;
+  for (const auto& f : {lab, test, unit, csv}) std::remove(f.c_str());
 }
 
 // dss train on a small bag writes a model that dss eval runs as sscnn:MODEL;
@@ -294,6 +369,7 @@ TEST(Baseline, BadBagsGetClearErrors) {
           " --out " + tmp("never.dssmodel"));
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.output.find("has no geometric head"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("models/thesis_sa_family.dssmodel"), std::string::npos) << r.output;  // where to go instead
   EXPECT_FALSE(exists(tmp("never.dssmodel")));
   for (const auto& f : {empty, junk, good, cut, other, small, calib}) std::remove(f.c_str());
 }

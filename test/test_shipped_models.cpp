@@ -101,7 +101,7 @@ TEST(ShippedModels, EveryRecipeIsAShippedModel) {
   std::vector<std::string> recipes;
   for (const auto& e : std::filesystem::directory_iterator(std::string(DSS_SOURCE_DIR) + "/config/recipes"))
     recipes.push_back(e.path().stem().string());
-  EXPECT_EQ(recipes.size(), 7u);
+  EXPECT_EQ(recipes.size(), 10u);
   for (const auto& r : recipes)
     EXPECT_TRUE(std::filesystem::exists(std::string(DSS_SOURCE_DIR) + "/models/" + r + ".dssmodel")) << r;
 }
@@ -157,6 +157,12 @@ TEST(ShippedModels, EveryRecipeDescribesItsModelFile) {
       EXPECT_TRUE(m.angle_correction.active() && m.angle_correction.degree <= std::stoi(correction));
     const std::string symmetry = r["calibrate_sigma"]["symmetry"].as<std::string>();
     EXPECT_EQ(inferenceSymmetryName(m.inference_symmetry), symmetry == "keep" ? std::string("none") : symmetry);
+    // A family model: its sigma holds the error of an uncalibrated unit, and
+    // its correction follows the mask height where the recipe fits that.
+    const bool family = static_cast<bool>(r["calibrate_sigma"]["unit_tolerances"]);
+    EXPECT_EQ(m.geometry_sigma_rad[0] > 0.0 && m.geometry_sigma_rad[1] > 0.0, family);
+    EXPECT_EQ(m.height_corrections.size(),
+              r["calibrate_height"] ? r["calibrate_height"]["changes_um"].size() : std::size_t{0});
   }
 }
 
@@ -165,6 +171,10 @@ TEST(ShippedModels, ThesisSaT50) { expectHeadline("thesis_sa_t50", 400); }
 TEST(ShippedModels, ThesisMa) { expectHeadline("thesis_ma", 400); }
 TEST(ShippedModels, WideMa) { expectHeadline("wide_ma", 300); }
 TEST(ShippedModels, ThesisCa) { expectHeadline("thesis_ca", 150); }  // the pattern head: ~0.2 s per image
+// The family models a built unit is calibrated from (geometric head), on their designs.
+TEST(ShippedModels, ThesisSaFamily) { expectHeadline("thesis_sa_family", 400); }
+TEST(ShippedModels, ThesisMaFamily) { expectHeadline("thesis_ma_family", 400); }
+TEST(ShippedModels, WideMaFamily) { expectHeadline("wide_ma_family", 300); }
 // wide_ma's head publishes nothing the backbone's features reach (angles
 // from the spots and the aperture code, the class from the position, a
 // constant sigma): inference skips it and publishes the same to the bit.

@@ -2,6 +2,7 @@
 // images of one built unit with the network frozen (model/unit_calibration),
 // refits its sigma on those images when they are enough, measures its
 // spot-mismatch level where the model has none, and writes the unit model.
+#include <filesystem>
 #include <iostream>
 #include <sstream>
 
@@ -80,11 +81,16 @@ int runCalibrateUnit(int argc, char** argv) {
   if (max_images < 0) throw UsageError("dss calibrate-unit: --max-images must be >= 0");
   sparse::configureThreads(1, 2);
   Model model = loadModel(args.get("model"));
-  if (!model.meta.arch.geometric_head)
-    throw UsageError("dss calibrate-unit: " + args.get("model") +
-                     " has no geometric head, so no geometry to fit; train one with dss train --head geometric, or "
-                     "calibrate the unit's baseline with dss calibrate");
   const SensorConfig sensor = parseSensorConfig(model.meta.sensor_yaml, args.get("model") + " (sensor)");
+  if (!model.meta.arch.geometric_head) {
+    // A shipped sensor's family model lies beside its model (models/<sensor>_family.dssmodel).
+    const std::filesystem::path family =
+        std::filesystem::path(args.get("model")).parent_path() / (sensor.name + "_family.dssmodel");
+    throw UsageError("dss calibrate-unit: " + args.get("model") + " has no geometric head, so no geometry to fit; " +
+                     (std::filesystem::exists(family) ? "calibrate the unit from its family model " + family.string()
+                                                      : std::string("train one with dss train --head geometric")) +
+                     ", or calibrate the unit's baseline with dss calibrate");
+  }
   DatasetTopics topics;
   topics.image = args.get("image-topic");
   topics.truth = args.get("truth-topic");
