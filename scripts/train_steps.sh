@@ -35,9 +35,12 @@ train_and_evaluate() {
     [ -f "$ckpt" ] && resume=(--resume "$ckpt")
     "$DSS" train "${train_data[@]}" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" "$@" \
       "${resume[@]}" | tee "$DATA/$name.train.json"
-    # smooth angle correction, sigma (level, or a constant per axis) and the input envelope from fresh images
+    # smooth angle correction, sigma (level, or a constant per axis) and the input envelope from fresh images;
+    # the unit tolerances' sigma in the same pass unless height entries change the estimates after it
+    local tolerances="${UNIT_TOLERANCES:-keep}"
+    [ -n "${HEIGHT_BAGS:-}" ] && tolerances=keep
     "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
-      --correction-degree "$correction" | tee "$DATA/$name.sigma.json"
+      --correction-degree "$correction" --unit-tolerances "$tolerances" | tee "$DATA/$name.sigma.json"
     # Estimates averaged over the sensor's mirror images, and their sigma. (A second step because the shipped
     # models got it after their first calibration; in one step the sigma could come out otherwise.)
     if [ "$symmetry" != keep ]; then
@@ -49,7 +52,7 @@ train_and_evaluate() {
       "$DSS" calibrate-height --model "$model" --data "${entry#*=}" --height-change-um "${entry%%=*}" --out "$model" \
         | tee -a "$DATA/$name.height.json"
     done
-    if [ "${UNIT_TOLERANCES:-keep}" != keep ]; then
+    if [ -n "${HEIGHT_BAGS:-}" ] && [ "${UNIT_TOLERANCES:-keep}" != keep ]; then
       "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
         --unit-tolerances "$UNIT_TOLERANCES" | tee "$DATA/$name.tolerances.json"
     fi

@@ -167,6 +167,15 @@ double jsonNumber(const std::string& line, const std::string& key) {
   return std::stod(line.substr(at + key.size() + 4));
 }
 
+// The fields of one row of dss eval's CSV (a quoted status detail may hold
+// commas and then spans several: count from the end past the status).
+std::vector<std::string> csvFields(const std::string& row) {
+  std::vector<std::string> fields;
+  std::istringstream cells(row);
+  for (std::string cell; std::getline(cells, cell, ',');) fields.push_back(cell);
+  return fields;
+}
+
 std::string lastLine(const std::string& output, const std::string& prefix) {
   const auto at = output.rfind(prefix);
   return at == std::string::npos ? "" : output.substr(at, output.find('\n', at) - at);
@@ -211,10 +220,8 @@ TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
   std::getline(lines, row);  // header
   int bounded = 0, answered_picks = 0;
   for (int index = 0; std::getline(lines, row); ++index) {
-    std::vector<std::string> fields;
-    std::istringstream cells(row);
-    for (std::string cell; std::getline(cells, cell, ',');) fields.push_back(cell);
-    ASSERT_GE(fields.size(), 16u) << row;  // a status detail may hold commas
+    const std::vector<std::string> fields = csvFields(row);
+    ASSERT_GE(fields.size(), 16u) << row;
     const bool has_bound = fields[fields.size() - 2] != "nan";
     bounded += has_bound;
     answered_picks += index % 6 == 0 && fields[10] == "1";
@@ -254,14 +261,9 @@ TEST(CalibrateUnit, ShippedFamilyModelCalibratesADrawnUnit) {
       ++flagged;
       continue;
     }
-    std::istringstream fields(row);
-    std::array<double, 10> v{};
-    for (double& x : v) {
-      std::string field;
-      std::getline(fields, field, ',');
-      x = std::stod(field);
-    }
-    within_3_sigma += std::abs(v[6]) <= 3.0 * v[8] && std::abs(v[7]) <= 3.0 * v[9];
+    const std::vector<std::string> f = csvFields(row);  // errors, then sigmas: columns 6-9
+    within_3_sigma +=
+        std::abs(std::stod(f[6])) <= 3.0 * std::stod(f[8]) && std::abs(std::stod(f[7])) <= 3.0 * std::stod(f[9]);
   }
   std::printf("uncalibrated unit: %d of %d images flagged model_mismatch, %d others within 3 sigma\n", flagged, images,
               within_3_sigma);
