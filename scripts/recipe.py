@@ -14,8 +14,11 @@ Keys:
   train             {arch, epochs, lr, seed, centroid_weighting, feature_corrections,
                     [lattice_phase], [head]}: dss train options
   calibrate_sigma   {correction_degree: keep|none|D, symmetry: keep|none|flips|dihedral,
-                    [unit_tolerances: K]}: K (geometric head) adds the error of a unit built to
-                    K x typical tolerances to sigma, for a family model that units are calibrated from
+                    [unit_tolerances: K], [nominal_bags: [NAME, ...]]}: K (geometric head) adds
+                    the error of a unit built to K x typical tolerances to sigma, for a family model
+                    that units are calibrated from; nominal_bags: the sigma bags without anomalies,
+                    on which alone the angle correction, sigma and the spot-mismatch level are
+                    fitted (default: all); the others widen the input envelope only
   calibrate_height  {changes_um: [H, ...], count, seed} (optional, geometric head): per H, COUNT
                     images of the design with its mask H um higher (lower: the cover glass, if
                     thicker, as thick as the mask is high), seeds SEED, SEED + 1, ...; dss
@@ -113,7 +116,14 @@ def main():
     check(path, "train", train, ("arch", "epochs", "lr", "seed", "centroid_weighting", "feature_corrections"),
           ("lattice_phase", "head"))
     sigma = recipe["calibrate_sigma"]
-    check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"), ("unit_tolerances",))
+    check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"), ("unit_tolerances", "nominal_bags"))
+    sigma_names = [str(b.get("name")) for b in recipe["bags"]["sigma"] if isinstance(b, dict)]
+    nominal_bags = sigma.get("nominal_bags", [])
+    if not isinstance(nominal_bags, list) or "nominal_bags" in sigma and not nominal_bags:
+        fail(path, "calibrate_sigma.nominal_bags", "must be a non-empty list of sigma bag names")
+    for name in nominal_bags:
+        if str(name) not in sigma_names:
+            fail(path, "calibrate_sigma.nominal_bags", "'%s' is not a sigma bag (%s)" % (name, ", ".join(sigma_names)))
     out = {
         "SENSOR": str(recipe["sensor"]),
         "SETS": " ".join(str(s) for s in recipe.get("set", [])),
@@ -131,6 +141,7 @@ def main():
         "CORRECTION": str(sigma["correction_degree"]),
         "SYMMETRY": str(sigma["symmetry"]),
         "UNIT_TOLERANCES": str(sigma.get("unit_tolerances", "keep")),
+        "NOMINAL_BAGS": " ".join(str(n) for n in nominal_bags),
         "BASELINE": str(recipe.get("baseline", "centroid")),
         "HEIGHT_BAGS": height_bags(path, recipe["calibrate_height"], "%s/../sensors/%s.yaml" % (
             os.path.dirname(os.path.abspath(path)), recipe["sensor"])) if "calibrate_height" in recipe else "",

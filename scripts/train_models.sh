@@ -43,6 +43,9 @@ for model in "${models[@]}"; do
   for b in $TRAIN_BAGS; do train="$train $(make_bag "$model" "$b")"; done
   for b in $SIGMA_BAGS; do sigma="$sigma $(make_bag "$model" "$b")"; done
   test="$(make_bag "$model" "$TEST_BAG")"
+  nominal=""
+  for n in $NOMINAL_BAGS; do nominal="$nominal $DATA/$model.$n.bag"; done
+  NOMINAL_BAGS="${nominal# }"
   heights=""
   for h in $HEIGHT_BAGS; do heights="$heights ${h%%=*}=$(make_bag "$model" "${h#*=}")"; done
   HEIGHT_BAGS="${heights# }"

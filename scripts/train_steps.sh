@@ -13,6 +13,8 @@
 # fits how the angle correction changes with the mask height (calibrate-height);
 # with UNIT_TOLERANCES=K (a family model) adds the error of a unit built to
 # K x typical tolerances to its sigma (calibrate-sigma --unit-tolerances);
+# with NOMINAL_BAGS (the sigma bags without anomalies) fits all of the above
+# on those alone and widens the input envelope to all sigma bags;
 # evaluates it on the test bag, then calibrates the
 # centroid baseline on the first 1000 images of the first training bag
 # (MODELS/NAME.calib.yaml) and evaluates it on the same test bag; with
@@ -35,16 +37,22 @@ train_and_evaluate() {
     [ -f "$ckpt" ] && resume=(--resume "$ckpt")
     "$DSS" train "${train_data[@]}" --out "$model" --checkpoint "$ckpt" --epochs "$epochs" --arch "$arch" "$@" \
       "${resume[@]}" | tee "$DATA/$name.train.json"
-    # smooth angle correction, sigma (level, or a constant per axis) and the input envelope from fresh images;
-    # the unit tolerances' sigma in the same pass unless height entries change the estimates after it
-    local tolerances="${UNIT_TOLERANCES:-keep}"
+    # smooth angle correction, sigma (level, or a constant per axis), the input envelope and (geometric head) the
+    # spot-mismatch level from fresh nominal images; the unit tolerances' sigma in the same pass unless height
+    # entries change the estimates after it
+    local tolerances="${UNIT_TOLERANCES:-keep}" bag
+    local -a nominal_data=("${sigma_data[@]}")
+    if [ -n "${NOMINAL_BAGS:-}" ]; then
+      nominal_data=()
+      for bag in $NOMINAL_BAGS; do nominal_data+=(--data "$bag"); done
+    fi
     [ -n "${HEIGHT_BAGS:-}" ] && tolerances=keep
-    "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
+    "$DSS" calibrate-sigma --model "$model" "${nominal_data[@]}" --max-images 0 --out "$model" \
       --correction-degree "$correction" --unit-tolerances "$tolerances" | tee "$DATA/$name.sigma.json"
     # Estimates averaged over the sensor's mirror images, and their sigma. (A second step because the shipped
     # models got it after their first calibration; in one step the sigma could come out otherwise.)
     if [ "$symmetry" != keep ]; then
-      "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
+      "$DSS" calibrate-sigma --model "$model" "${nominal_data[@]}" --max-images 0 --out "$model" \
         --symmetry "$symmetry" | tee "$DATA/$name.symmetry.json"
     fi
     local entry
@@ -53,8 +61,13 @@ train_and_evaluate() {
         | tee -a "$DATA/$name.height.json"
     done
     if [ -n "${HEIGHT_BAGS:-}" ] && [ "${UNIT_TOLERANCES:-keep}" != keep ]; then
-      "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" \
+      "$DSS" calibrate-sigma --model "$model" "${nominal_data[@]}" --max-images 0 --out "$model" \
         --unit-tolerances "$UNIT_TOLERANCES" | tee "$DATA/$name.tolerances.json"
+    fi
+    # the anomalous sigma bags widen the input envelope, nothing else
+    if [ -n "${NOMINAL_BAGS:-}" ]; then
+      "$DSS" calibrate-sigma --model "$model" "${sigma_data[@]}" --max-images 0 --out "$model" --sigma keep \
+        --spot-mismatch keep | tee "$DATA/$name.envelope.json"
     fi
   fi
   "$DSS" eval --data "$test" --estimator "sscnn:$model" --csv "$DATA/$name.sscnn.csv" | tee "$DATA/$name.sscnn.json"

@@ -3,52 +3,43 @@
 #
 # A sensor family (FAMILY: A, the 5-aperture mask of
 # docs/results/irregular_masks.md drawn with seed 11, or a shipped config:
-# thesis_ma, thesis_sa, wide_ma) gets a geometric-head model trained on its
-# design; units are drawn from it with the as-built tolerances at SCALE x
-# typical (fresh seeds per family and unit); each unit is calibrated on N of its
-# own lab images (`dss calibrate-unit`, network frozen) and, beside it, the
-# baseline on the same N images (`dss calibrate`); both are evaluated on 2000
-# other images of the same unit. The drift part moves the mask of units
-# calibrated on 400 images (20 um higher, 5 um along x) and replays 200
-# reference images through `dss recalibrate`. Uncalibrated units (N = 0) are
-# read by the family model with `dss calibrate-sigma --unit-tolerances K`.
+# thesis_ma, thesis_sa, wide_ma) has a geometric-head model of its design: a
+# shipped config's is models/<FAMILY>_family.dssmodel (made by
+# scripts/train_models.sh <FAMILY>_family, whose recipe holds why it is made as
+# it is), mask A's is trained here. Units are drawn from the design with the
+# as-built tolerances at SCALE x typical (fresh seeds per family and unit); each
+# unit is calibrated on N of its own lab images (`dss calibrate-unit`, network
+# frozen) and, beside it, the baseline on the same N images (`dss calibrate`);
+# both are evaluated on 2000 other images of the same unit. The drift part
+# moves the mask of units calibrated on 400 images (20 um higher, 5 um along x)
+# and replays 200 reference images through `dss recalibrate`. Uncalibrated
+# units (N = 0) are read by the family model with `dss calibrate-sigma
+# --unit-tolerances K`.
 #
 #   FAMILY=thesis_ma scripts/unit_tables.sh         everything, then the tables
 #   FAMILY=thesis_ma scripts/unit_tables.sh table   the tables from what is there
 # Data in $DATA_DIR (default .ws/units_data/$FAMILY); every file that exists is
 # reused, so a cut run continues where it stopped. Knobs (environment): UNITS,
-# SCALES, NS, DRIFT_UNITS, EPOCHS (family model; 0: as created), JOBS (units in parallel,
-# default 2), HEIGHT_CHANGES_UM (heights the family's correction is fitted at).
+# SCALES, NS, DRIFT_UNITS, EPOCHS (mask A's family model), JOBS (units in
+# parallel, default 2).
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
 FAMILY="${FAMILY:-A}"
-# Seeds: design training, test and sigma images; the first unit (then +1 ...).
-# thesis_sa's family model is the head as created (EPOCHS=0): two epochs of
-# training made its solve worse (0.00131 against 0.00106 deg on the images the
-# baseline answers). wide_ma's too (its aperture code gives the coarse
-# estimate, and the shipped model's learned weights changed nothing it
-# publishes), with the held-out angle correction its ±60° field needs
-# (FAMILY_SIGMA: options of the family model's calibrate-sigma). In flight,
-# wide_ma's references are gated at 20 deg (MAX_DISAGREEMENT_DEG): the drift
-# moves its estimates at large angles by up to 6 deg (at the default 1 deg only 16-20
-# of 200 references paired: no refit; at 5 deg the 30-37 refused lay at large
-# angles, and the refit left a radial bias there); the fit's spot rejection
-# takes the references' gross errors. wide_ma's family model also learns how
-# its correction changes with the mask height (HEIGHT_CHANGES_UM, dss
-# calibrate-height): on a window, an air gap or a thinner window diffracts otherwise.
-FAMILY_SIGMA=()
+# Seeds: design training, test and sigma images (a shipped family's recipe
+# uses the same); the first unit (then +1 ...). In flight, wide_ma's references
+# are gated at 20 deg (MAX_DISAGREEMENT_DEG): the drift moves its estimates at
+# large angles by up to 6 deg (at the default 1 deg only 16-20 of 200
+# references paired: no refit; at 5 deg the 30-37 refused lay at large angles,
+# and the refit left a radial bias there); the fit's spot rejection takes the
+# references' gross errors.
 MAX_DISAGREEMENT_DEG=1
-HEIGHT_CHANGES=""
 case "$FAMILY" in
   A) SEEDS=(9101 9102 9103 9501) ;;
   thesis_ma) SEEDS=(9601 9602 9603 9611) ;;
-  thesis_sa) SEEDS=(9701 9702 9703 9711) EPOCHS="${EPOCHS:-0}" ;;
-  wide_ma)
-    SEEDS=(9801 9802 9803 9811) EPOCHS="${EPOCHS:-0}" FAMILY_SIGMA=(--correction-degree 16) MAX_DISAGREEMENT_DEG=20
-    HEIGHT_CHANGES="20 -20 10 -10 40 -40 30 -30" ;;
+  thesis_sa) SEEDS=(9701 9702 9703 9711) ;;
+  wide_ma) SEEDS=(9801 9802 9803 9811) MAX_DISAGREEMENT_DEG=20 ;;
   *) echo "unit_tables.sh: FAMILY must be A, thesis_ma, thesis_sa or wide_ma (got '$FAMILY')" >&2; exit 2 ;;
 esac
-HEIGHT_CHANGES_UM="${HEIGHT_CHANGES_UM-$HEIGHT_CHANGES}"
 DATA="${DATA_DIR:-$WS/units_data/$FAMILY}"
 first=${SEEDS[3]}
 UNITS="${UNITS:-$first $((first + 1)) $((first + 2)) $((first + 3)) $((first + 4))}"
@@ -71,40 +62,22 @@ family() {
   else
     [ -f "$FAMILY.yaml" ] || cp "$ROOT/config/sensors/$FAMILY.yaml" "$FAMILY.yaml"
   fi
-  local F=$FAMILY train_count=24000
-  # A head as created reads 400 of them, the baseline 1000 (the same first
+  local F=$FAMILY shipped="$ROOT/models/${FAMILY}_family.dssmodel"
+  [ -f $F.family.dssmodel ] || [ ! -f "$shipped" ] || cp "$shipped" $F.family.dssmodel
+  # Training reads 24 000 images, the baseline the first 1000 (the same first
   # images whatever the count: each image is seeded by its index).
-  [ "$EPOCHS" = 0 ] && train_count=1000
+  local train_count=1000
+  [ -f $F.family.dssmodel ] || train_count=24000
   [ -f $F.train.bag ] || { log "design: $train_count training images"; quiet "$DSS" generate --sensor $F.yaml --count $train_count --seed ${SEEDS[0]} --out $F.train.bag; }
   [ -f $F.sigma.bag ] || quiet "$DSS" generate --sensor $F.yaml --count 2000 --seed ${SEEDS[2]} --out $F.sigma.bag
   [ -f $F.test.bag ] || quiet "$DSS" generate --sensor $F.yaml --count 2000 --seed ${SEEDS[1]} --out $F.test.bag
-  if [ ! -f $F.dssmodel ]; then
-    # A head as created (EPOCHS=0) reads 400 images for its sigma and input envelope.
-    local max_images=0
-    [ "$EPOCHS" = 0 ] && max_images=400
-    log "design: the family model ($EPOCHS epochs; log $F.train.log)"
-    "$DSS" train --data $F.train.bag --head geometric --max-images $max_images --epochs "$EPOCHS" --out $F.dssmodel \
-      >$F.train.log 2>&1
-  fi
-  # The spot-mismatch level of the design (what model_mismatch is judged against).
-  [ -f $F.design.dssmodel ] || [ -f $F.family.dssmodel ] || quiet "$DSS" calibrate-sigma --model $F.dssmodel \
-    --data $F.sigma.bag "${FAMILY_SIGMA[@]}" --out $F.design.dssmodel
-  # The correction's change with the mask height (a glass window: an air gap
-  # or a thinner window diffracts otherwise), from the design with its mask
-  # moved by each of HEIGHT_CHANGES_UM (2000 images each; each fitted against
-  # the design's correction alone, so their order does not matter).
   if [ ! -f $F.family.dssmodel ]; then
-    local h k=0
-    cp $F.design.dssmodel $F.family.dssmodel.tmp
-    for h in $HEIGHT_CHANGES_UM; do
-      k=$((k + 1))
-      [ -f $F.height$h.bag ] || quiet "$DSS" generate --sensor $F.yaml \
-        $(/usr/bin/python3 "$ROOT/scripts/recipe.py" --height-sets $F.yaml "$h") --count 2000 \
-        --seed $((SEEDS[0] + 119 + k)) --out $F.height$h.bag  # wide_ma: 9921-9928
-      quiet "$DSS" calibrate-height --model $F.family.dssmodel.tmp --data $F.height$h.bag --height-change-um "$h" \
-        --out $F.family.dssmodel.tmp
-    done
-    mv $F.family.dssmodel.tmp $F.family.dssmodel
+    if [ ! -f $F.dssmodel ]; then
+      log "design: the family model ($EPOCHS epochs; log $F.train.log)"
+      "$DSS" train --data $F.train.bag --head geometric --epochs "$EPOCHS" --out $F.dssmodel >$F.train.log 2>&1
+    fi
+    # sigma, the input envelope and the spot-mismatch level of the design (what model_mismatch is judged against)
+    quiet "$DSS" calibrate-sigma --model $F.dssmodel --data $F.sigma.bag --out $F.family.dssmodel
   fi
   [ -f $F.calib.yaml ] || quiet "$DSS" calibrate --data $F.train.bag --max-images 1000 --out $F.calib.yaml
   # The family model as shipped for units nobody calibrated: sigma holds the

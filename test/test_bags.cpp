@@ -18,6 +18,7 @@
 #include <cstdio>
 #include <fstream>
 #include <functional>
+#include <iterator>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -282,6 +283,50 @@ TEST(CalibrateUnit, ShippedFamilyModelCalibratesADrawnUnit) {
   for (const auto& f : {lab, test, unit, csv}) std::remove(f.c_str());
 }
 
+// calibrate-sigma with --sigma keep --spot-mismatch keep (how a family recipe's
+// stray-lit sigma bag is used) covers the images by the input envelope and
+// changes nothing else: the estimates and sigma on them stay to the digit.
+TEST(CalibrateSigma, KeepingSigmaAndMismatchWidensTheEnvelopeOnly) {
+  const std::string bag = tmp("stray.bag"), widened = tmp("widened.dssmodel"), out = tmp("refused.dssmodel");
+  const std::string family = std::string(DSS_SOURCE_DIR) + "/models/thesis_sa_family.dssmodel";
+  ASSERT_EQ(run("generate --sensor " + std::string(DSS_SOURCE_DIR) +
+                "/config/sensors/thesis_sa.yaml --anomalies stray_light=1 --count 12 --seed 612 --out " + bag)
+                .code,
+            0);
+  auto r = run("calibrate-sigma --model " + family + " --data " + bag + " --sigma keep --spot-mismatch keep --out " +
+               widened);
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::string line = lastLine(r.output, "{\"command\"");
+  EXPECT_NE(line.find("\"sigma_mode\": \"kept\""), std::string::npos) << line;
+  EXPECT_EQ(line.find("scale_alpha"), std::string::npos) << line;
+  std::vector<std::vector<std::string>> rows[2];
+  int k = 0;
+  for (const auto& model : {family, widened}) {
+    const std::string csv = tmp("widened" + std::to_string(k) + ".csv");
+    ASSERT_EQ(run("eval --data " + bag + " --estimator sscnn:" + model + " --crlb-samples 0 --csv " + csv).code, 0);
+    std::istringstream lines(slurp(csv));
+    std::string row;
+    std::getline(lines, row);  // header
+    while (std::getline(lines, row)) rows[k].push_back(csvFields(row));
+    std::remove(csv.c_str());
+    ++k;
+  }
+  ASSERT_EQ(rows[0].size(), 12u);
+  ASSERT_EQ(rows[1].size(), 12u);
+  for (std::size_t i = 0; i < rows[0].size(); ++i) {
+    for (int column = 4; column <= 9; ++column)  // estimates, errors, sigmas
+      EXPECT_EQ(rows[0][i][column], rows[1][i][column]) << "image " << i << ", column " << column;
+    EXPECT_EQ(rows[1][i][10], "1") << "image " << i;  // valid: within the envelope
+  }
+  for (const std::string mode : {"--sigma sometimes", "--spot-mismatch fit"}) {
+    r = run("calibrate-sigma --model " + family + " --data " + bag + " " + mode + " --out " + out);
+    EXPECT_EQ(r.code, 2) << r.output;
+    EXPECT_NE(r.output.find(mode.substr(0, mode.find(' '))), std::string::npos) << r.output;
+  }
+  EXPECT_FALSE(exists(out));
+  for (const auto& f : {bag, widened}) std::remove(f.c_str());
+}
+
 // dss train on a small bag writes a model that dss eval runs as sscnn:MODEL;
 // a too-short time limit stops with a checkpoint (exit 3) that --resume
 // finishes; bad options and mismatched checkpoints are refused.
@@ -306,6 +351,16 @@ TEST(Train, TrainThenEvalAndResume) {
   r = run("eval --data " + bag + " --estimator sscnn:" + model + " --crlb-samples 0");
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_EQ(jsonNumber(lastLine(r.output, "{\"estimator\""), "n"), 96);
+  // The finished checkpoint resumed again (a script rerun after its model
+  // file was removed) writes the same model, and says that it is trained.
+  std::remove(model.c_str());
+  r = run(common + " --resume " + ckpt);
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_EQ(jsonNumber(lastLine(r.output, "{\"command\""), "epochs_completed"), 2) << r.output;
+  ASSERT_TRUE(exists(model));
+  std::ifstream file(model, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  EXPECT_NE(bytes.find("epochs_completed: 2\n"), std::string::npos);  // the file's training summary (text)
 
   r = run(common + " --resume " + ckpt + " --seed 9");
   EXPECT_EQ(r.code, 1);

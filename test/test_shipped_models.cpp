@@ -10,6 +10,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -44,35 +45,42 @@ Pin readRecipe(const std::string& model) {
   return pin;
 }
 
-// Mean absolute error per axis (deg) and valid count over the first `count`
-// images of the pin's test bag.
+// Mean absolute error per axis (deg) over the valid estimates, and their count.
 struct Measured {
   double alpha_mean_deg = 0.0, beta_mean_deg = 0.0;
   int valid = 0, images = 0;
 };
 
-Measured measure(const Pin& pin, int count) {
-  const std::string path = std::string(DSS_SOURCE_DIR) + "/models/" + pin.model + ".dssmodel";
-  const auto estimator = makeEstimator("sscnn:" + path);
-  sparse::configureThreads(1, 1);
-  DatasetSpec spec = pin.test;
-  spec.count = static_cast<std::uint64_t>(count);
-  spec.threads = 2;
+struct LabelledImages {
   std::vector<cv::Mat> images;
   std::vector<ImageTruth> truths;
-  DatasetGenerator(estimator->sensor(), spec).run([&](const DatasetItem& item) {
-    images.push_back(item.image);
-    truths.push_back(item.truth);
+};
+
+// The first `count` images of `spec` (seed, offset, sampling) of `sensor`.
+LabelledImages render(const SensorConfig& sensor, DatasetSpec spec, int count) {
+  spec.count = static_cast<std::uint64_t>(count);
+  spec.threads = 2;
+  LabelledImages set;
+  DatasetGenerator(sensor, spec).run([&](const DatasetItem& item) {
+    set.images.push_back(item.image);
+    set.truths.push_back(item.truth);
   });
+  return set;
+}
+
+// As `dss eval` estimates them (one thread, batches of 16).
+Measured measure(SunEstimator& estimator, const LabelledImages& set) {
+  sparse::configureThreads(1, 1);
   Measured m;
-  m.images = static_cast<int>(images.size());
+  m.images = static_cast<int>(set.images.size());
   constexpr std::size_t kBatch = 16;
-  for (std::size_t first = 0; first < images.size(); first += kBatch) {
-    const std::vector<cv::Mat> batch(images.begin() + first, images.begin() + std::min(images.size(), first + kBatch));
-    const auto estimates = estimator->estimate(batch);
+  for (std::size_t first = 0; first < set.images.size(); first += kBatch) {
+    const std::vector<cv::Mat> batch(set.images.begin() + first,
+                                     set.images.begin() + std::min(set.images.size(), first + kBatch));
+    const auto estimates = estimator.estimate(batch);
     for (std::size_t k = 0; k < estimates.size(); ++k) {
       if (!estimates[k].valid) continue;
-      const ImageTruth& t = truths[first + k];
+      const ImageTruth& t = set.truths[first + k];
       m.alpha_mean_deg += std::abs(estimates[k].alpha_rad - t.alpha_rad) * kDegPerRad;
       m.beta_mean_deg += std::abs(estimates[k].beta_rad - t.beta_rad) * kDegPerRad;
       ++m.valid;
@@ -83,6 +91,16 @@ Measured measure(const Pin& pin, int count) {
     m.beta_mean_deg /= m.valid;
   }
   return m;
+}
+
+std::unique_ptr<SunEstimator> shippedModel(const std::string& model) {
+  return makeEstimator("sscnn:" + std::string(DSS_SOURCE_DIR) + "/models/" + model + ".dssmodel");
+}
+
+// Over the first `count` images of the pin's test bag, of the sensor recorded in the model file.
+Measured measure(const Pin& pin, int count) {
+  const auto estimator = shippedModel(pin.model);
+  return measure(*estimator, render(estimator->sensor(), pin.test, count));
 }
 
 void expectHeadline(const std::string& model, int count) {
@@ -175,41 +193,29 @@ TEST(ShippedModels, ThesisCa) { expectHeadline("thesis_ca", 150); }  // the patt
 TEST(ShippedModels, ThesisSaFamily) { expectHeadline("thesis_sa_family", 400); }
 TEST(ShippedModels, ThesisMaFamily) { expectHeadline("thesis_ma_family", 400); }
 TEST(ShippedModels, WideMaFamily) { expectHeadline("wide_ma_family", 300); }
-// wide_ma's head publishes nothing the backbone's features reach (angles
-// from the spots and the aperture code, the class from the position, a
-// constant sigma): inference skips it and publishes the same to the bit.
-// thesis_ca's pattern head never runs the network; the other shipped models
-// run their backbones.
-TEST(ShippedModels, BackboneRunsOnlyWhereWhatIsPublishedReadsIt) {
-  EXPECT_FALSE(loadModel(std::string(DSS_SOURCE_DIR) + "/models/thesis_ca.dssmodel").net->backboneNeeded());
-  for (const std::string name :
-       {"thesis_sa", "thesis_sa_t50", "thesis_ma", "thesis_sa_published", "thesis_ma_published"})
-    EXPECT_TRUE(loadModel(std::string(DSS_SOURCE_DIR) + "/models/" + name + ".dssmodel").net->backboneNeeded()) << name;
-  Model m = loadModel(std::string(DSS_SOURCE_DIR) + "/models/wide_ma.dssmodel");
-  m.net->eval();
-  ASSERT_FALSE(m.net->backboneNeeded());
-  DatasetSpec spec = readRecipe("wide_ma").test;
-  spec.count = 12;
-  std::vector<cv::Mat> images;
-  DatasetGenerator(parseSensorConfig(m.meta.sensor_yaml, "wide_ma"), spec).run([&](const DatasetItem& item) {
-    images.push_back(item.image);
-  });
-  const auto skipped = m.predict(images);
-  m.net->setSkipUnusedBackbone(false);
-  const auto full = m.predict(images);
-  ASSERT_EQ(skipped.size(), full.size());
-  for (std::size_t i = 0; i < full.size(); ++i) {
-    EXPECT_EQ(skipped[i].alpha_rad, full[i].alpha_rad) << i;
-    EXPECT_EQ(skipped[i].beta_rad, full[i].beta_rad) << i;
-    EXPECT_EQ(skipped[i].alpha_variance_rad2, full[i].alpha_variance_rad2) << i;
-    EXPECT_EQ(skipped[i].beta_variance_rad2, full[i].beta_variance_rad2) << i;
-    EXPECT_EQ(skipped[i].subfov_class, full[i].subfov_class) << i;
-    EXPECT_EQ(skipped[i].code_margin, full[i].code_margin) << i;
+
+// A unit calibrated from a family model keeps its input envelope and its
+// network, so the family must answer stray-lit images and read them about as
+// the sensor's shipped model does: made from nominal images only, thesis_sa's
+// declined 68 % of them out_of_distribution, thesis_ma's 24 %. thesis_ma's
+// family reads them with a bias in beta (docs/unit_calibration.md, "Not yet"):
+// held here to where it stands, 1.9 x the shipped model's mean.
+TEST(ShippedModels, FamilyModelsReadStrayLightAsTheShippedModels) {
+  for (const std::string sensor : {"thesis_sa", "thesis_ma", "wide_ma"}) {
+    const auto family = shippedModel(sensor + "_family"), shipped = shippedModel(sensor);
+    SensorConfig stray_lit = family->sensor();
+    stray_lit.anomalies.stray_light_probability = 1.0;
+    DatasetSpec spec = readRecipe(sensor + "_family").test;
+    spec.seed = 611;  // fresh images, not the recipe's stray-lit sigma bag
+    const LabelledImages set = render(stray_lit, spec, 100);
+    const Measured f = measure(*family, set), s = measure(*shipped, set);
+    EXPECT_GE(f.valid, 95) << sensor;
+    EXPECT_LT(f.alpha_mean_deg, 1.25 * s.alpha_mean_deg) << sensor;
+    EXPECT_LT(f.beta_mean_deg, (sensor == "thesis_ma" ? 2.2 : 1.25) * s.beta_mean_deg) << sensor;
+    std::printf("%s under stray light: family %.6f / %.6f deg on %d, shipped %.6f / %.6f deg on %d of %d images\n",
+                sensor.c_str(), f.alpha_mean_deg, f.beta_mean_deg, f.valid, s.alpha_mean_deg, s.beta_mean_deg, s.valid,
+                f.images);
   }
-  // A variance that reads the features needs the backbone again.
-  torch::NoGradGuard no_grad;
-  m.net->named_parameters()["variance.weight"].fill_(1e-3);
-  EXPECT_TRUE(m.net->backboneNeeded());
 }
 
 TEST(ShippedModels, ThesisSaPublished) { expectHeadline("thesis_sa_published", 400); }

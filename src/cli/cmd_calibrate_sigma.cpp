@@ -54,8 +54,23 @@ int runCalibrateSigma(int argc, char** argv) {
            "SCALE x typical tolerances (1: 20 um height, 10 um offset, 0.2 deg rotation, 0.1 deg tilt, 1 um per "
            "aperture), for a family model used on units it was not calibrated on; 'keep' the model's geometry sigma",
            "keep", false, false},
+          {"sigma", "MODE",
+           "'refit' sigma's scale (or constant) on these images, or 'keep' the model's: with --spot-mismatch keep and "
+           "the other steps kept, only the input envelope widens to these images (anomalous ones, say, whose errors "
+           "and spots are not what sigma and the mismatch level should be fitted to)",
+           "refit", false, false},
+          {"spot-mismatch", "MODE",
+           "geometric head: 'refit' the spot-mismatch level (what model_mismatch is judged against) on these images, "
+           "or 'keep' the model's",
+           "refit", false, false},
       });
   if (!args.parse(argc, argv, 2)) return 0;
+  auto refitOrKeep = [&](const std::string& option) {
+    if (args.get(option) != "refit" && args.get(option) != "keep")
+      throw UsageError("dss calibrate-sigma: --" + option + " must be refit or keep, not " + args.get(option));
+    return args.get(option) == "refit";
+  };
+  const bool refit_sigma = refitOrKeep("sigma"), refit_mismatch = refitOrKeep("spot-mismatch");
   // Checked before the bags are read, which can take minutes.
   const std::string correction = args.get("correction-degree");
   std::optional<int> max_degree;  // none: keep the model's correction
@@ -116,12 +131,14 @@ int runCalibrateSigma(int argc, char** argv) {
               << bias->cross_validated_rms_deg[static_cast<std::size_t>(bias->degree + 1)] << " deg, none "
               << bias->cross_validated_rms_deg.front() << " deg; " << bias->outliers << " outliers left out)\n";
   }
-  Progress sigma_bar("calibrate-sigma: sigma", n);
-  const SigmaCalibration c =
-      calibrateSigma(model, data.samples, n, [&](std::size_t done, std::size_t) { sigma_bar.update(done); });
-  sigma_bar.finish();
+  std::optional<SigmaCalibration> c;
+  if (refit_sigma) {
+    Progress sigma_bar("calibrate-sigma: sigma", n);
+    c = calibrateSigma(model, data.samples, n, [&](std::size_t done, std::size_t) { sigma_bar.update(done); });
+    sigma_bar.finish();
+  }
   std::optional<MismatchCalibration> mismatch;
-  if (model.meta.arch.geometric_head) {
+  if (model.meta.arch.geometric_head && refit_mismatch) {
     try {
       mismatch = calibrateSpotMismatch(model, data.samples, max_images);
     } catch (const std::invalid_argument& e) {
@@ -143,14 +160,17 @@ int runCalibrateSigma(int argc, char** argv) {
     for (int k = 0; k < 3; ++k) o << ", \"" << name << "_within_" << k + 1 << "sigma\": " << cov.within[k];
     return o.str();
   };
-  std::cout << "{\"command\": \"calibrate-sigma\", \"model\": \"" << args.get("out") << "\", \"samples\": " << c.samples
-            << ", \"lit_sites_min\": " << envelope.min_sites << ", \"lit_sites_max\": " << envelope.max_sites
-            << ", \"sigma_mode\": \"" << (c.constant ? (c.site_law.active() ? "lit_sites" : "constant") : "head")
-            << "\", \"sigma_site_exponent\": " << c.site_law.exponent
-            << ", \"sigma_site_reference\": " << c.site_law.reference_sites
-            << ", \"constant_sigma_alpha_deg\": " << radToDeg(c.constant_sigma_alpha_rad)
-            << ", \"constant_sigma_beta_deg\": " << radToDeg(c.constant_sigma_beta_rad)
-            << ", \"correction_degree\": " << model.meta.angle_correction.degree << ", \"inference_symmetry\": \""
+  std::cout << "{\"command\": \"calibrate-sigma\", \"model\": \"" << args.get("out") << "\", \"samples\": " << n
+            << ", \"lit_sites_min\": " << envelope.min_sites << ", \"lit_sites_max\": " << envelope.max_sites;
+  if (c)
+    std::cout << ", \"sigma_mode\": \"" << (c->constant ? (c->site_law.active() ? "lit_sites" : "constant") : "head")
+              << "\", \"sigma_site_exponent\": " << c->site_law.exponent
+              << ", \"sigma_site_reference\": " << c->site_law.reference_sites
+              << ", \"constant_sigma_alpha_deg\": " << radToDeg(c->constant_sigma_alpha_rad)
+              << ", \"constant_sigma_beta_deg\": " << radToDeg(c->constant_sigma_beta_rad);
+  else
+    std::cout << ", \"sigma_mode\": \"kept\"";
+  std::cout << ", \"correction_degree\": " << model.meta.angle_correction.degree << ", \"inference_symmetry\": \""
             << inferenceSymmetryName(model.meta.inference_symmetry) << "\"";
   if (bias) {
     std::cout << ", \"correction_cv_rms_deg\": [";
@@ -166,9 +186,11 @@ int runCalibrateSigma(int argc, char** argv) {
               << ", \"mismatch_flagged_fraction\": " << mismatch->flagged_fraction;
   std::cout << ", \"geometry_sigma_deg\": [" << radToDeg(model.meta.geometry_sigma_rad[0]) << ", "
             << radToDeg(model.meta.geometry_sigma_rad[1]) << "]";
-  std::cout << ", \"scale_alpha\": " << c.scale_alpha << ", \"scale_beta\": " << c.scale_beta
-            << coverage("before_alpha", c.alpha_before) << coverage("before_beta", c.beta_before)
-            << coverage("after_alpha", c.alpha_after) << coverage("after_beta", c.beta_after) << "}" << std::endl;
+  if (c)
+    std::cout << ", \"scale_alpha\": " << c->scale_alpha << ", \"scale_beta\": " << c->scale_beta
+              << coverage("before_alpha", c->alpha_before) << coverage("before_beta", c->beta_before)
+              << coverage("after_alpha", c->alpha_after) << coverage("after_beta", c->beta_after);
+  std::cout << "}" << std::endl;
   return 0;
 }
 

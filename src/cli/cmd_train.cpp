@@ -148,7 +148,7 @@ int runTrain(int argc, char** argv) {
   std::cout << "{\"command\": \"train\", \"sensor\": \"" << data.sensor.name << "\", \"arch\": \"" << outcome.arch
             << "\", \"stop\": \"" << toString(result.stop)
             << "\", \"model\": " << (complete ? "\"" + args.get("out") + "\"" : "null") << ", \"checkpoint\": \""
-            << options.checkpoint_path << "\", \"epochs_completed\": " << p.epoch + (p.epoch_end ? 1 : 0)
+            << options.checkpoint_path << "\", \"epochs_completed\": " << result.epochs_completed
             << ", \"wall_s\": " << result.wall_s << ", \"images_per_s\": " << p.images_per_s
             << ", \"val_alpha_mean_deg\": " << json::number(p.val_alpha_mean_deg)
             << ", \"val_beta_mean_deg\": " << json::number(p.val_beta_mean_deg)

@@ -187,7 +187,8 @@ Model Trainer::Impl::withMetadata(const std::string& data_description) const {
   if (!data_description.empty()) t << YAML::Key << "data" << YAML::Value << data_description;
   t << YAML::Key << "train_samples" << YAML::Value << train.size();
   t << YAML::Key << "validation_samples" << YAML::Value << validation.size();
-  t << YAML::Key << "epochs_completed" << YAML::Value << last.epoch + (last.epoch_end ? 1 : 0);
+  // `epoch` counts the epochs done, also in a run resumed after the last one.
+  t << YAML::Key << "epochs_completed" << YAML::Value << epoch;
   t << YAML::Key << "epochs_scheduled" << YAML::Value << options.epochs;
   t << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
   t << YAML::Key << "optimizer" << YAML::Value << "AdamW, linear warm-up + cosine decay";
@@ -315,6 +316,7 @@ TrainResult Trainer::run(const std::function<void(const TrainProgress&)>& on_pro
   checkpoint();
   m.last.elapsed_s = m.elapsed_before_s + secondsSince(start);
   result.last = m.last;
+  result.epochs_completed = m.epoch;
   result.wall_s = m.last.elapsed_s;
   return result;
 }

@@ -116,7 +116,8 @@ const char* toString(TrainStop stop);
 
 struct TrainResult {
   TrainStop stop = TrainStop::finished;
-  TrainProgress last;  // figures of the last validation
+  TrainProgress last;        // figures of the last validation (none when a resumed run had nothing left to do)
+  int epochs_completed = 0;  // over all runs of the job
   double wall_s = 0.0;
 };
 
