@@ -194,6 +194,43 @@ TEST(ShippedModels, ThesisSaFamily) { expectHeadline("thesis_sa_family", 400); }
 TEST(ShippedModels, ThesisMaFamily) { expectHeadline("thesis_ma_family", 400); }
 TEST(ShippedModels, WideMaFamily) { expectHeadline("wide_ma_family", 300); }
 
+// wide_ma's head publishes nothing the backbone's features reach (angles
+// from the spots and the aperture code, the class from the position, a
+// constant sigma): inference skips it and publishes the same to the bit.
+// thesis_ca's pattern head never runs the network; the other shipped models
+// run their backbones.
+TEST(ShippedModels, BackboneRunsOnlyWhereWhatIsPublishedReadsIt) {
+  EXPECT_FALSE(loadModel(std::string(DSS_SOURCE_DIR) + "/models/thesis_ca.dssmodel").net->backboneNeeded());
+  for (const std::string name :
+       {"thesis_sa", "thesis_sa_t50", "thesis_ma", "thesis_sa_published", "thesis_ma_published"})
+    EXPECT_TRUE(loadModel(std::string(DSS_SOURCE_DIR) + "/models/" + name + ".dssmodel").net->backboneNeeded()) << name;
+  Model m = loadModel(std::string(DSS_SOURCE_DIR) + "/models/wide_ma.dssmodel");
+  m.net->eval();
+  ASSERT_FALSE(m.net->backboneNeeded());
+  DatasetSpec spec = readRecipe("wide_ma").test;
+  spec.count = 12;
+  std::vector<cv::Mat> images;
+  DatasetGenerator(parseSensorConfig(m.meta.sensor_yaml, "wide_ma"), spec).run([&](const DatasetItem& item) {
+    images.push_back(item.image);
+  });
+  const auto skipped = m.predict(images);
+  m.net->setSkipUnusedBackbone(false);
+  const auto full = m.predict(images);
+  ASSERT_EQ(skipped.size(), full.size());
+  for (std::size_t i = 0; i < full.size(); ++i) {
+    EXPECT_EQ(skipped[i].alpha_rad, full[i].alpha_rad) << i;
+    EXPECT_EQ(skipped[i].beta_rad, full[i].beta_rad) << i;
+    EXPECT_EQ(skipped[i].alpha_variance_rad2, full[i].alpha_variance_rad2) << i;
+    EXPECT_EQ(skipped[i].beta_variance_rad2, full[i].beta_variance_rad2) << i;
+    EXPECT_EQ(skipped[i].subfov_class, full[i].subfov_class) << i;
+    EXPECT_EQ(skipped[i].code_margin, full[i].code_margin) << i;
+  }
+  // A variance that reads the features needs the backbone again.
+  torch::NoGradGuard no_grad;
+  m.net->named_parameters()["variance.weight"].fill_(1e-3);
+  EXPECT_TRUE(m.net->backboneNeeded());
+}
+
 // A unit calibrated from a family model keeps its input envelope and its
 // network, so the family must answer stray-lit images and read them about as
 // the sensor's shipped model does: made from nominal images only, thesis_sa's
