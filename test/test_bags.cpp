@@ -18,7 +18,6 @@
 #include <cstdio>
 #include <fstream>
 #include <functional>
-#include <iterator>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -177,6 +176,16 @@ std::vector<std::string> csvFields(const std::string& row) {
   return fields;
 }
 
+// The data rows of dss eval's CSV at `path` (the header left out).
+std::vector<std::string> csvRows(const std::string& path) {
+  std::istringstream lines(slurp(path));
+  std::vector<std::string> rows;
+  std::string row;
+  std::getline(lines, row);  // header
+  while (std::getline(lines, row)) rows.push_back(row);
+  return rows;
+}
+
 std::string lastLine(const std::string& output, const std::string& prefix) {
   const auto at = output.rfind(prefix);
   return at == std::string::npos ? "" : output.substr(at, output.find('\n', at) - at);
@@ -212,15 +221,14 @@ TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
   EXPECT_GT(jsonNumber(line, "valid_rate"), 0.8);
   EXPECT_LT(jsonNumber(line, "alpha_mean_deg"), 0.005) << line;  // the published SSCNN: 0.0053
   EXPECT_GT(jsonNumber(line, "crlb_ratio"), 1.0) << line;        // nothing beats the bound
-  const std::string rows = slurp(csv);
-  EXPECT_EQ(std::count(rows.begin(), rows.end(), '\n'), 31);
+  const std::string text = slurp(csv);
+  EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 31);
   // The bound on every 6th image (30 images, 5 samples), the answered ones
   // among them: the same images whichever estimator runs.
-  std::istringstream lines(rows);
-  std::string row;
-  std::getline(lines, row);  // header
+  const std::vector<std::string> rows = csvRows(csv);
   int bounded = 0, answered_picks = 0;
-  for (int index = 0; std::getline(lines, row); ++index) {
+  for (int index = 0; index < static_cast<int>(rows.size()); ++index) {
+    const std::string& row = rows[static_cast<std::size_t>(index)];
     const std::vector<std::string> fields = csvFields(row);
     ASSERT_GE(fields.size(), 16u) << row;
     const bool has_bound = fields[fields.size() - 2] != "nan";
@@ -252,11 +260,8 @@ TEST(CalibrateUnit, ShippedFamilyModelCalibratesADrawnUnit) {
 
   auto r = run("eval --data " + test + " --estimator sscnn:" + family + " --crlb-samples 0 --csv " + csv);
   ASSERT_EQ(r.code, 0) << r.output;
-  std::istringstream rows(slurp(csv));
-  std::string row;
-  std::getline(rows, row);  // header
   int images = 0, flagged = 0, within_3_sigma = 0;
-  while (std::getline(rows, row)) {
+  for (const std::string& row : csvRows(csv)) {
     ++images;
     if (row.find("model_mismatch") != std::string::npos) {
       ++flagged;
@@ -304,10 +309,7 @@ TEST(CalibrateSigma, KeepingSigmaAndMismatchWidensTheEnvelopeOnly) {
   for (const auto& model : {family, widened}) {
     const std::string csv = tmp("widened" + std::to_string(k) + ".csv");
     ASSERT_EQ(run("eval --data " + bag + " --estimator sscnn:" + model + " --crlb-samples 0 --csv " + csv).code, 0);
-    std::istringstream lines(slurp(csv));
-    std::string row;
-    std::getline(lines, row);  // header
-    while (std::getline(lines, row)) rows[k].push_back(csvFields(row));
+    for (const std::string& row : csvRows(csv)) rows[k].push_back(csvFields(row));
     std::remove(csv.c_str());
     ++k;
   }
@@ -358,9 +360,7 @@ TEST(Train, TrainThenEvalAndResume) {
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_EQ(jsonNumber(lastLine(r.output, "{\"command\""), "epochs_completed"), 2) << r.output;
   ASSERT_TRUE(exists(model));
-  std::ifstream file(model, std::ios::binary);
-  const std::string bytes((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
-  EXPECT_NE(bytes.find("epochs_completed: 2\n"), std::string::npos);  // the file's training summary (text)
+  EXPECT_NE(slurp(model).find("epochs_completed: 2\n"), std::string::npos);  // the file's training summary (text)
 
   r = run(common + " --resume " + ckpt + " --seed 9");
   EXPECT_EQ(r.code, 1);
