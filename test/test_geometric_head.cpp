@@ -431,6 +431,41 @@ TEST(GeometricHead, AnUncertainApertureCountsForWhatIsKnownOfIt) {
   EXPECT_TRUE(f.geometry->groupPositionVariance().empty());
 }
 
+// The mismatch residual is the spots' against the geometry at the angles
+// returned: where the plain solve stops short (here it takes no step at all,
+// 0.05 deg from the answer), the step in the graph completes it, and the
+// residual is that of the converged solve, not the shortfall's (measured at
+// the plain solve's angles, an untrained head's threshold rose 6000-fold).
+TEST(GeometricHead, ResidualIsMeasuredAtTheReturnedAngles) {
+  const Fixture f = makeFixture(5, 91);
+  const double alpha = degToRad(1.0), beta = degToRad(-1.2);
+  Sites sites;
+  int whole = 0;
+  for (int k = 0; k < f.unit.numApertures(); ++k) {
+    const auto px = f.unit.spotPx(k, sunVectorFromAngles(alpha, beta));
+    if (!px || !f.unit.insideDetector(*px, 10.0)) continue;
+    // One spot 0.8 um off its aperture's place: a residual to measure.
+    const Eigen::Vector2d moved = whole++ == 0 ? Eigen::Vector2d(0.8, 0.0) : Eigen::Vector2d::Zero();
+    addSpot(sites, *px * f.unit.pitch_um + moved, 1.0, f.config, 0);
+  }
+  ASSERT_GE(whole, 3) << "the draw should show three whole spots";
+  const auto solve = [&](int iterations) {
+    auto options = optionsFor(f.config);
+    options.association_rounds = 1;
+    options.gauss_newton_iterations = iterations;
+    return solveGeometry(
+        *f.geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight), torch::tensor(sites.index), 1,
+        torch::tensor({alpha + degToRad(0.05), beta - degToRad(0.05)}, torch::kFloat64).view({1, 2}), options);
+  };
+  const auto converged = solve(5), short_stop = solve(0);
+  const double residual = converged.residual_per_dof[0].item<double>();
+  EXPECT_GT(residual, 0.0);
+  EXPECT_LT((short_stop.angles_rad - converged.angles_rad).abs().max().item<double>(), 1e-7);
+  EXPECT_NEAR(short_stop.residual_per_dof[0].item<double>(), residual, 0.01 * residual);
+  EXPECT_NEAR(short_stop.residual_um[0].item<double>(), converged.residual_um[0].item<double>(),
+              0.01 * converged.residual_um[0].item<double>());
+}
+
 TEST(GeometricHead, GradientsThroughTheSolveMatchFiniteDifferences) {
   const Fixture f = makeFixture(4, 77);
   Sites sites;

@@ -104,10 +104,10 @@ struct GeometricSolution {
   torch::Tensor log_variance;
   // [B] spots read in the final solve (0: the reference is returned).
   torch::Tensor spots_read;
-  // [B] RMS distance of the read spots from the geometry's [um].
+  // [B] RMS distance of the read spots from the geometry's at angles_rad [um].
   torch::Tensor residual_um;
-  // [B] the read spots' weighted squared residual per degree of freedom,
-  // sum_g w_g |r_g|^2 / (2 spots - 2), 0 with fewer than two spots: in units
+  // [B] the read spots' weighted squared residual per degree of freedom at
+  // angles_rad, sum_g w_g |r_g|^2 / (2 spots - 2), 0 with fewer than two spots: in units
   // of the spot noise per unit weight, which the model's mismatch scale
   // calibrates (how far the spots are from any pattern the geometry makes).
   torch::Tensor residual_per_dof;
