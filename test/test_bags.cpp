@@ -354,11 +354,17 @@ TEST(Train, TrainThenEvalAndResume) {
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_EQ(jsonNumber(lastLine(r.output, "{\"estimator\""), "n"), 96);
   // The finished checkpoint resumed again (a script rerun after its model
-  // file was removed) writes the same model, and says that it is trained.
+  // file was removed) writes the same model, and says that it is trained
+  // and how it validated.
   std::remove(model.c_str());
   r = run(common + " --resume " + ckpt);
   ASSERT_EQ(r.code, 0) << r.output;
-  EXPECT_EQ(jsonNumber(lastLine(r.output, "{\"command\""), "epochs_completed"), 2) << r.output;
+  const std::string again = lastLine(r.output, "{\"command\"");
+  EXPECT_EQ(jsonNumber(again, "epochs_completed"), 2) << r.output;
+  for (const char* key : {"val_alpha_mean_deg", "val_beta_max_deg", "best_val_mean_deg", "best_epoch"}) {
+    EXPECT_GT(jsonNumber(again, key), 0.0) << key << ": " << again;
+    EXPECT_NEAR(jsonNumber(again, key), jsonNumber(line, key), 1e-6 * jsonNumber(line, key)) << key;
+  }
   ASSERT_TRUE(exists(model));
   EXPECT_NE(slurp(model).find("epochs_completed: 2\n"), std::string::npos);  // the file's training summary (text)
 
