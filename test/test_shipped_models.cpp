@@ -181,6 +181,16 @@ TEST(ShippedModels, EveryRecipeDescribesItsModelFile) {
     EXPECT_EQ(m.geometry_sigma_rad[0] > 0.0 && m.geometry_sigma_rad[1] > 0.0, family);
     EXPECT_EQ(m.height_corrections.size(),
               r["calibrate_height"] ? r["calibrate_height"]["changes_um"].size() : std::size_t{0});
+    // A geometric head reading two spots or more flags model_mismatch beyond
+    // twice the 99.5th percentile of its design's residuals over their median:
+    // a few times the level. Thousands would flag no drifted unit (an
+    // as-created thesis_ma head's residual, taken before the solve's last
+    // step, gave 152 311).
+    if (m.arch.geometric_head && sensor.mask.apertures.size() > 1) {
+      EXPECT_GT(m.mismatch_level, 0.0);
+      EXPECT_GT(m.mismatch_threshold, 1.0);
+      EXPECT_LT(m.mismatch_threshold, 20.0);
+    }
   }
 }
 
@@ -234,9 +244,9 @@ TEST(ShippedModels, BackboneRunsOnlyWhereWhatIsPublishedReadsIt) {
 // A unit calibrated from a family model keeps its input envelope and its
 // network, so the family must answer stray-lit images and read them about as
 // the sensor's shipped model does: made from nominal images only, thesis_sa's
-// declined 68 % of them out_of_distribution, thesis_ma's 24 %. thesis_ma's
-// family reads them with a bias in beta (docs/unit_calibration.md, "Not yet"):
-// held here to where it stands, 1.9 x the shipped model's mean.
+// declined 68 % of them out_of_distribution, thesis_ma's 24 %. (thesis_ma's
+// family trained on design images read them with a beta bias, 2.0 x the
+// shipped model's mean here; the head as created, shipped since, has none.)
 TEST(ShippedModels, FamilyModelsReadStrayLightAsTheShippedModels) {
   for (const std::string sensor : {"thesis_sa", "thesis_ma", "wide_ma"}) {
     const auto family = shippedModel(sensor + "_family"), shipped = shippedModel(sensor);
@@ -248,7 +258,7 @@ TEST(ShippedModels, FamilyModelsReadStrayLightAsTheShippedModels) {
     const Measured f = measure(*family, set), s = measure(*shipped, set);
     EXPECT_GE(f.valid, 95) << sensor;
     EXPECT_LT(f.alpha_mean_deg, 1.25 * s.alpha_mean_deg) << sensor;
-    EXPECT_LT(f.beta_mean_deg, (sensor == "thesis_ma" ? 2.2 : 1.25) * s.beta_mean_deg) << sensor;
+    EXPECT_LT(f.beta_mean_deg, 1.25 * s.beta_mean_deg) << sensor;
     std::printf("%s under stray light: family %.6f / %.6f deg on %d, shipped %.6f / %.6f deg on %d of %d images\n",
                 sensor.c_str(), f.alpha_mean_deg, f.beta_mean_deg, f.valid, s.alpha_mean_deg, s.beta_mean_deg, s.valid,
                 f.images);
