@@ -35,6 +35,9 @@ constexpr std::size_t kSigmaImages = 100;
 constexpr int kSigmaDraws = 32;
 constexpr std::uint64_t kSigmaSeed = 0x5161;
 constexpr double kSigmaStep = 0.01;
+// Refits that bring the aperture prior's weight to the fitted spot noise
+// (one is typically enough).
+constexpr int kPriorPasses = 4;
 
 // One image as the network reads it: its lit sites with the weights the
 // solve gives them, the model's estimate and the solve's residual.
@@ -387,8 +390,22 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
     if (norms[k] <= options.outlier_sigmas * sigma) inliers.push_back(obs[k]);
   report.outliers = static_cast<int>(obs.size() - inliers.size());
   if (inliers.size() < 3) throw std::invalid_argument(what + ": too few consistent spots in the images");
-  const GeometryFit fine(design.mask, 0.0, aperturePriors(sigma * sigma / prior2));
+  // The prior holds an aperture to aperture_prior_um against the spot noise
+  // of the fit itself (its residual variance per axis at unit weight),
+  // refitted until the two agree. The coarse fit's residuals, re-read through
+  // a geometry that moved, can be 45 times that variance: scaled by them, a
+  // 20 um prior held wide_ma's unpinned apertures to 1-3 um and a 2 um one to
+  // 0.1 um, which left 92 % of a unit's images model_mismatch.
+  double prior_weight = sigma * sigma / prior2;
+  GeometryFit fine(design.mask, 0.0, aperturePriors(prior_weight));
   report.iterations += fine.run(p, inliers, options.max_iterations);
+  for (int pass = 0; pass < kPriorPasses; ++pass) {
+    const double noise_weight = fine.residualVariance(p, inliers) / prior2;
+    if (!(noise_weight > 0.0) || std::abs(noise_weight - prior_weight) <= 0.05 * prior_weight) break;
+    prior_weight = noise_weight;
+    fine = GeometryFit(design.mask, 0.0, aperturePriors(prior_weight));
+    report.iterations += fine.run(p, inliers, options.max_iterations);
+  }
   report.free_parameters = fine.freeParameters();
   report.spots = static_cast<int>(inliers.size());
   std::vector<bool> used(images.size(), false);
