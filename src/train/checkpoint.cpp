@@ -88,14 +88,7 @@ std::string Trainer::Impl::stateYaml(double elapsed_s) const {
   e << YAML::Key << "best_val_mean_deg" << YAML::Value << best_val_mean_deg;
   e << YAML::Key << "best_epoch" << YAML::Value << best_epoch;
   // The last validation: what a run resumed after the last epoch reports.
-  e << YAML::Key << "last_validation" << YAML::Value << YAML::BeginMap;
-  e << YAML::Key << "alpha_mean_deg" << YAML::Value << last.val_alpha_mean_deg;
-  e << YAML::Key << "beta_mean_deg" << YAML::Value << last.val_beta_mean_deg;
-  e << YAML::Key << "alpha_max_deg" << YAML::Value << last.val_alpha_max_deg;
-  e << YAML::Key << "beta_max_deg" << YAML::Value << last.val_beta_max_deg;
-  e << YAML::Key << "class_accuracy" << YAML::Value << last.val_class_accuracy;
-  e << YAML::Key << "gross" << YAML::Value << last.val_gross;
-  e << YAML::EndMap;
+  e << YAML::Key << "last_validation" << YAML::Value << YAML::Load(validationYaml(last));
   e << YAML::EndMap;
   return e.c_str();
 }
@@ -153,14 +146,8 @@ void Trainer::Impl::resume(const std::string& path) {
     best_epoch = state["best_epoch"].as<int>();
     last.best_val_mean_deg = best_val_mean_deg;
     last.best_epoch = best_epoch;
-    if (const YAML::Node v = state["last_validation"]) {  // absent in checkpoints made before it existed
-      last.val_alpha_mean_deg = v["alpha_mean_deg"].as<double>();
-      last.val_beta_mean_deg = v["beta_mean_deg"].as<double>();
-      last.val_alpha_max_deg = v["alpha_max_deg"].as<double>();
-      last.val_beta_max_deg = v["beta_max_deg"].as<double>();
-      last.val_class_accuracy = v["class_accuracy"].as<double>();
-      last.val_gross = v["gross"].as<std::int64_t>();
-    }
+    if (state["last_validation"])  // absent in checkpoints made before it existed
+      readValidationYaml(state["last_validation"], last);
     if (epoch < 0 || epoch > options.epochs || step_in_epoch < 0 || !(elapsed_before_s >= 0.0) ||
         !std::isfinite(elapsed_before_s) || best_epoch < -1 || best_epoch > options.epochs)
       throw CheckpointError(origin + ": position out of range (epoch " + std::to_string(epoch) + ", step " +

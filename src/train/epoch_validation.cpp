@@ -1,10 +1,34 @@
 // Validation after each epoch, and the best weights it keeps.
+#include <yaml-cpp/yaml.h>
+
 #include <algorithm>
 
 #include "digital_sun_sensor/train/validation_error.h"
 #include "trainer_impl.h"
 
 namespace dss {
+
+std::string validationYaml(const TrainProgress& p) {
+  YAML::Emitter v;
+  v << YAML::BeginMap;
+  v << YAML::Key << "validation_alpha_mean_deg" << YAML::Value << p.val_alpha_mean_deg;
+  v << YAML::Key << "validation_beta_mean_deg" << YAML::Value << p.val_beta_mean_deg;
+  v << YAML::Key << "validation_alpha_max_deg" << YAML::Value << p.val_alpha_max_deg;
+  v << YAML::Key << "validation_beta_max_deg" << YAML::Value << p.val_beta_max_deg;
+  v << YAML::Key << "validation_class_accuracy" << YAML::Value << p.val_class_accuracy;
+  v << YAML::Key << "validation_gross" << YAML::Value << p.val_gross;
+  v << YAML::EndMap;
+  return v.c_str();
+}
+
+void readValidationYaml(const YAML::Node& map, TrainProgress& p) {
+  p.val_alpha_mean_deg = map["validation_alpha_mean_deg"].as<double>();
+  p.val_beta_mean_deg = map["validation_beta_mean_deg"].as<double>();
+  p.val_alpha_max_deg = map["validation_alpha_max_deg"].as<double>();
+  p.val_beta_max_deg = map["validation_beta_max_deg"].as<double>();
+  p.val_class_accuracy = map["validation_class_accuracy"].as<double>();
+  p.val_gross = map["validation_gross"].as<std::int64_t>();
+}
 
 // Fills the val_* fields of `out` from (at most validation_max) validation samples.
 void Trainer::Impl::measure(TrainProgress& out) {

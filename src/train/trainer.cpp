@@ -198,16 +198,7 @@ Model Trainer::Impl::withMetadata(const std::string& data_description) const {
   t << YAML::Key << "wall_s" << YAML::Value << last.elapsed_s;
   t << YAML::EndMap;
   m.meta.training_yaml = t.c_str();
-  YAML::Emitter v;
-  v << YAML::BeginMap;
-  v << YAML::Key << "validation_alpha_mean_deg" << YAML::Value << last.val_alpha_mean_deg;
-  v << YAML::Key << "validation_beta_mean_deg" << YAML::Value << last.val_beta_mean_deg;
-  v << YAML::Key << "validation_alpha_max_deg" << YAML::Value << last.val_alpha_max_deg;
-  v << YAML::Key << "validation_beta_max_deg" << YAML::Value << last.val_beta_max_deg;
-  v << YAML::Key << "validation_class_accuracy" << YAML::Value << last.val_class_accuracy;
-  v << YAML::Key << "validation_gross" << YAML::Value << last.val_gross;
-  v << YAML::EndMap;
-  m.meta.metrics_yaml = v.c_str();
+  m.meta.metrics_yaml = validationYaml(last);
   return m;
 }
 

@@ -14,7 +14,17 @@
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/train/trainer.h"
 
+namespace YAML {
+class Node;
+}
+
 namespace dss {
+
+// The validation figures of `p` as a YAML map (validation_alpha_mean_deg,
+// ...): the model file's metrics, and a checkpoint's last validation.
+std::string validationYaml(const TrainProgress& p);
+// Reads such a map back into `p` (YAML::Exception on a missing key).
+void readValidationYaml(const YAML::Node& map, TrainProgress& p);
 
 struct Trainer::Impl {
   SensorConfig sensor;
