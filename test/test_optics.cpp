@@ -1,5 +1,6 @@
 // Optics against closed forms: Airy far field, geometric shadow, energy
-// conservation, spot centre at h tan(theta) (with and without cover glass).
+// conservation, spot centre at h tan(theta) (with and without cover glass);
+// the spot cache's blend composed into one map.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -7,6 +8,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/optics.h"
+#include "digital_sun_sensor/sim/spot_cache.h"
 
 namespace dss {
 namespace {
@@ -166,6 +168,31 @@ TEST(Optics, VignettingShiftsCentroidByHalfThicknessTangent) {
   o.crop = false;
   const Eigen::Vector2d c = centroid(computeSpotMap(circle(100.0), sunVectorFromAngles(theta, 0.0), p, o));
   EXPECT_NEAR(c.x(), -0.5 * t * std::tan(theta), 0.1 * 0.5 * t * std::tan(theta));
+}
+
+TEST(SpotCache, ComposedBlendSamplesAsTheWeightedMaps) {
+  // Four cropped nodes of different extents around an oblique incidence
+  // (the renderer composes them once for every aperture of one shape).
+  OpticalPath p = monochromatic(2000.0, 0.55, 1.0, 256);
+  p.vignetting = true;
+  p.mask_thickness_um = 20.0;
+  SpotCache cache(p, 1.0);
+  const SpotCache::Blend blend = cache.lookup(circle(60.0), sunVectorFromAngles(2.3 * kRadPerDeg, -1.6 * kRadPerDeg));
+  ASSERT_EQ(blend.count, 4);
+  const SpotMap one = blend.composed();
+  double worst = 0.0, peak = 0.0, power = 0.0;
+  for (int k = 0; k < blend.count; ++k) power += blend.weights[k] * blend.maps[k]->total_power_um2;
+  for (double v = -150.0; v <= 150.0; v += 1.37)
+    for (double u = -150.0; u <= 150.0; u += 1.37) {
+      double sum = 0.0;
+      for (int k = 0; k < blend.count; ++k) sum += blend.weights[k] * blend.maps[k]->sample(u, v);
+      worst = std::max(worst, std::abs(one.sample(u, v) - sum));
+      peak = std::max(peak, sum);
+    }
+  ASSERT_GT(peak, 0.0);
+  EXPECT_LT(worst / peak, 1e-5);
+  EXPECT_NEAR(one.total_power_um2, power, 1e-9 * power);
+  EXPECT_NEAR(one.peak, peak, 0.05 * peak);
 }
 
 }  // namespace

@@ -4,6 +4,9 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <memory>
+#include <string>
+#include <vector>
 
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
@@ -44,6 +47,24 @@ void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double c
     }
   }
 }
+
+// An image's spot for an aperture shape: the cache's blend, and where
+// apertures of that shape are several, the blend composed into one map.
+struct ShapeSpot {
+  SpotCache::Blend blend;
+  int apertures = 0;
+  double power_um2 = 0.0;
+  std::shared_ptr<const SpotMap> composed;
+
+  void add(cv::Mat& image, double cx_um, double cy_um, double scale, double pitch_um) const {
+    if (!composed) return splat(image, blend, cx_um, cy_um, scale, pitch_um);
+    SpotCache::Blend one;
+    one.maps[0] = composed;
+    one.weights[0] = 1.0f;
+    one.count = 1;
+    splat(image, one, cx_um, cy_um, scale, pitch_um);
+  }
+};
 
 }  // namespace
 
@@ -116,6 +137,14 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
   // shape comes from the unit's path at the mask centre.
   const GlassSlab glass{c.cover_glass.enabled ? c.cover_glass.thickness_mm * 1000.0 : 0.0, cache_->path().glass_index};
   const double half_w_um = 0.5 * w * pitch, half_h_um = 0.5 * h * pitch;
+  // One sun direction in this image: one blend per aperture shape, composed
+  // once where several apertures share it (a regular mask: all of them).
+  std::vector<std::string> keys;
+  std::map<std::string, ShapeSpot> shapes;
+  for (const auto& aperture : instance_.apertures) {
+    keys.push_back(ApertureGeometry::from(aperture).key());
+    ++shapes[keys.back()].apertures;
+  }
   for (std::size_t i = 0; i < instance_.apertures.size(); ++i) {
     const Eigen::Vector3d ap = instance_.apertureCentreUm(i);
     const auto hit = traceToDetector(ap, sun, glass);
@@ -135,16 +164,22 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
       t.spots.push_back(spot);
       continue;
     }
-    const SpotCache::Blend blend = cache_->lookup(geometry, sun_mask);
-    double power = 0.0;
-    for (int k = 0; k < blend.count; ++k) power += blend.weights[k] * blend.maps[k]->total_power_um2;
-    spot.relative_flux = static_cast<float>(power / ApertureGeometry::from(c.mask.apertures[i]).nominalAreaUm2());
-    splat(rate, blend, hit->x(), hit->y(), electron_rate_, pitch);
+    ShapeSpot& shape = shapes.at(keys[i]);
+    if (shape.blend.count == 0) {  // the shape's first aperture on the detector
+      shape.blend = cache_->lookup(geometry, sun_mask);
+      for (int k = 0; k < shape.blend.count; ++k)
+        shape.power_um2 += shape.blend.weights[k] * shape.blend.maps[k]->total_power_um2;
+      if (shape.apertures > 1 && shape.blend.count > 1)
+        shape.composed = std::make_shared<const SpotMap>(shape.blend.composed());
+    }
+    spot.relative_flux =
+        static_cast<float>(shape.power_um2 / ApertureGeometry::from(c.mask.apertures[i]).nominalAreaUm2());
+    shape.add(rate, hit->x(), hit->y(), electron_rate_, pitch);
     if (ghost) {
       // Detector -> mask underside -> detector: one more round trip of the
       // lateral drift, attenuated by both reflectances.
       const Eigen::Vector2d ghost_at = *hit + 2.0 * (*hit - ap.head<2>());
-      splat(rate, blend, ghost_at.x(), ghost_at.y(), electron_rate_ * c.anomalies.ghost_reflectance, pitch);
+      shape.add(rate, ghost_at.x(), ghost_at.y(), electron_rate_ * c.anomalies.ghost_reflectance, pitch);
     }
     t.spots.push_back(spot);
   }

@@ -1,8 +1,10 @@
 #include "digital_sun_sensor/sim/spot_cache.h"
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <sstream>
+#include <stdexcept>
 #include <thread>
 #include <vector>
 
@@ -125,6 +127,37 @@ SpotCache::Blend SpotCache::lookup(const ApertureGeometry& aperture, const Eigen
     ++blend.count;
   }
   return blend;
+}
+
+SpotMap SpotCache::Blend::composed() const {
+  SpotMap out;
+  if (count == 0) return out;
+  const double step = maps[0]->step_um;
+  double u_lo = maps[0]->u0_um, v_lo = maps[0]->v0_um;
+  for (int k = 1; k < count; ++k) u_lo = std::min(u_lo, maps[k]->u0_um), v_lo = std::min(v_lo, maps[k]->v0_um);
+  auto cellOf = [step](double from, double to) { return static_cast<int>(std::lround((to - from) / step)); };
+  for (int k = 0; k < count; ++k) {
+    const SpotMap& m = *maps[k];
+    if (m.step_um != step) throw std::logic_error("spot cache: blended maps on different grid steps");
+    out.cols = std::max(out.cols, cellOf(u_lo, m.u0_um) + m.cols);
+    out.rows = std::max(out.rows, cellOf(v_lo, m.v0_um) + m.rows);
+  }
+  out.step_um = step;
+  out.u0_um = u_lo;
+  out.v0_um = v_lo;
+  out.values.assign(static_cast<std::size_t>(out.rows) * out.cols, 0.0f);
+  for (int k = 0; k < count; ++k) {
+    const SpotMap& m = *maps[k];
+    const int dc = cellOf(u_lo, m.u0_um), dr = cellOf(v_lo, m.v0_um);
+    for (int r = 0; r < m.rows; ++r) {
+      const float* in = &m.values[static_cast<std::size_t>(r) * m.cols];
+      float* row = &out.values[static_cast<std::size_t>(r + dr) * out.cols + dc];
+      for (int c = 0; c < m.cols; ++c) row[c] += weights[k] * in[c];
+    }
+    out.total_power_um2 += weights[k] * m.total_power_um2;
+  }
+  for (float v : out.values) out.peak = std::max(out.peak, v);
+  return out;
 }
 
 }  // namespace dss

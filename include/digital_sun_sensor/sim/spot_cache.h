@@ -5,8 +5,6 @@
 // nodes are computed lazily, once, by the first thread that needs them.
 #pragma once
 
-#include "digital_sun_sensor/sim/optics.h"
-
 #include <array>
 #include <functional>
 #include <future>
@@ -14,6 +12,8 @@
 #include <memory>
 #include <mutex>
 #include <string>
+
+#include "digital_sun_sensor/sim/optics.h"
 
 namespace dss {
 
@@ -31,6 +31,13 @@ class SpotCache {
     std::array<std::shared_ptr<const SpotMap>, 4> maps;
     std::array<float, 4> weights{};
     int count = 0;
+
+    // The weighted sum of the maps as one map on their common sample
+    // lattice (every node's crop starts on a multiple of the grid step):
+    // sampling it equals the weighted sum of their samples, bilinear
+    // interpolation being linear, for a quarter of the lookups when one
+    // blend serves many apertures of the same shape.
+    SpotMap composed() const;
   };
 
   // Maps around the incidence direction `sun_mask` (unit, mask frame), with
