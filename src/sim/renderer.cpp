@@ -36,15 +36,36 @@ void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double c
   const int c1 = std::min(w - 1, static_cast<int>(std::floor((cx_um + u_hi) / pitch_um + half_w)));
   const int r0 = std::max(0, static_cast<int>(std::ceil((cy_um + v_lo) / pitch_um + half_h)));
   const int r1 = std::min(h - 1, static_cast<int>(std::floor((cy_um + v_hi) / pitch_um + half_h)));
+  if (c1 < c0) return;
+  // Row by row, each map's row and vertical weights once: the same
+  // bilinear lookup as SpotMap::sample, summed over the maps in order.
+  thread_local std::vector<float> acc;
   for (int r = r0; r <= r1; ++r) {
-    float* row = image.ptr<float>(r);
     const double v = (r - half_h) * pitch_um - cy_um;
-    for (int c = c0; c <= c1; ++c) {
-      const double u = (c - half_w) * pitch_um - cx_um;
-      float acc = 0.0f;
-      for (int k = 0; k < blend.count; ++k) acc += blend.weights[k] * blend.maps[k]->sample(u, v);
-      row[c] += static_cast<float>(scale * acc);
+    acc.assign(static_cast<std::size_t>(c1 - c0 + 1), 0.0f);
+    bool any = false;
+    for (int k = 0; k < blend.count; ++k) {
+      const SpotMap& m = *blend.maps[k];
+      const double y = (v - m.v0_um) / m.step_um;
+      if (!(y >= 0.0 && y < m.rows - 1)) continue;
+      any = true;
+      const int mr = static_cast<int>(y);
+      const float fy = static_cast<float>(y - mr);
+      const float* top = &m.values[static_cast<std::size_t>(mr) * m.cols];
+      const float* bottom = top + m.cols;
+      const float weight = blend.weights[k];
+      for (int c = c0; c <= c1; ++c) {
+        const double x = ((c - half_w) * pitch_um - cx_um - m.u0_um) / m.step_um;
+        if (!(x >= 0.0 && x < m.cols - 1)) continue;
+        const int mc = static_cast<int>(x);
+        const float fx = static_cast<float>(x - mc);
+        acc[static_cast<std::size_t>(c - c0)] += weight * ((1.0f - fy) * ((1.0f - fx) * top[mc] + fx * top[mc + 1]) +
+                                                           fy * ((1.0f - fx) * bottom[mc] + fx * bottom[mc + 1]));
+      }
     }
+    if (!any) continue;
+    float* row = image.ptr<float>(r);
+    for (int c = c0; c <= c1; ++c) row[c] += static_cast<float>(scale * acc[static_cast<std::size_t>(c - c0)]);
   }
 }
 
