@@ -328,7 +328,8 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     if (!step.allFinite()) return std::nullopt;
     angles += step.head<2>();
     gain += step[2];
-    converged = step.head<2>().norm() < 1e-12;  // one more pass: residual and normal matrix at the solution
+    // 1e-10 rad: 3e-5 of thesis_ca's sigma. One more pass: residual and normal matrix at the solution.
+    converged = step.head<2>().norm() < 1e-10;
   }
   if (used < 4 || !angles.allFinite()) return std::nullopt;
   const Eigen::Matrix3d inverse = normal.inverse();
