@@ -78,7 +78,10 @@ struct ShapeSpot {
   std::shared_ptr<const SpotMap> composed;
 
   void add(cv::Mat& image, double cx_um, double cy_um, double scale, double pitch_um) const {
-    if (!composed) return splat(image, blend, cx_um, cy_um, scale, pitch_um);
+    if (!composed) {
+      splat(image, blend, cx_um, cy_um, scale, pitch_um);
+      return;
+    }
     SpotCache::Blend one;
     one.maps[0] = composed;
     one.weights[0] = 1.0f;
