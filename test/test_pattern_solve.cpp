@@ -4,6 +4,7 @@
 // field (thesis_ca's three column groups are translates of one another,
 // 5.74 deg apart in alpha), which the design's rendered image at each, or
 // a quadrant hint, decides; light the design lacks (a ghost) leaves it open.
+// Its design's diffraction cache can be computed before the first image.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -15,6 +16,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/renderer.h"
+#include "digital_sun_sensor/sim/spot_cache.h"
 
 namespace dss {
 namespace {
@@ -188,6 +190,24 @@ TEST_F(PatternSolveTest, BadImagesAndHintsAreRefusedByName) {
   EXPECT_EQ(estimator.estimateOne(cv::Mat::zeros(512, 512, CV_8U)).status, status::kNoSun);
   EXPECT_THROW(estimator.estimateWithSubFovHints({cv::Mat::zeros(512, 512, CV_8U)}, {}), std::invalid_argument);
   EXPECT_THROW(estimator.estimateWithSubFovHints({cv::Mat::zeros(512, 512, CV_8U)}, {7}), std::invalid_argument);
+}
+
+TEST(PatternEstimatorWarmUp, ComputesTheDesignsSpotsBeforeTheFirstImage) {
+  // thesis_ca on a +-1 deg field with 2 deg diffraction nodes: its own cache
+  // (the node step is part of its key), nine nodes over the field.
+  const SensorConfig small = loadSensorConfig(
+      shippedPath("thesis_ca"), {"fov.alpha_max_deg=1", "fov.beta_max_deg=1", "optics.psf_node_step_deg=2"});
+  const PatternEstimator estimator(small, kNoSigmaImages);
+  const Renderer probe(SensorInstance::nominalOf(small));  // shares the design's cache
+  ASSERT_LT(probe.spotCache().nodesComputed(), 9u);        // the template's node only
+  const SunEstimator& as_estimator = estimator;
+  as_estimator.warmUp(2);
+  EXPECT_EQ(probe.spotCache().nodesComputed(), 9u);
+  // An image and its estimate (the design's image at the answer) need no new node.
+  const SunEstimate e = estimator.estimateOne(noiseFree(probe, 0.4, -0.6));
+  EXPECT_TRUE(e.valid) << e.status;
+  EXPECT_NEAR(radToDeg(e.alpha_rad), 0.4, 1e-3);
+  EXPECT_EQ(probe.spotCache().nodesComputed(), 9u);
 }
 
 }  // namespace

@@ -17,6 +17,10 @@ void SscnnNetImpl::initPattern(const SensorConfig& config, const InputSpec& inpu
   pattern_input_ = input;
 }
 
+void SscnnNetImpl::warmUp(int threads) const {
+  if (pattern_) pattern_->warmUp(threads);
+}
+
 SscnnOutput SscnnNetImpl::patternForward(const sparse::SparseTensor& input) {
   if (!pattern_) throw std::logic_error("pattern head: the sensor's pattern estimator was not made (initPattern)");
   const std::int64_t batch = input.sites->batchSize();

@@ -28,6 +28,8 @@ SscnnEstimator::SscnnEstimator(const std::string& model_path, const SensorConfig
 
 SscnnEstimator::~SscnnEstimator() = default;
 
+void SscnnEstimator::warmUp(int threads) const { impl_->model.net->warmUp(threads); }
+
 const SensorConfig& SscnnEstimator::sensor() const { return impl_->sensor; }
 
 std::string SscnnEstimator::inferenceSymmetry() const {

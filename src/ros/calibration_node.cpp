@@ -9,6 +9,7 @@
 #include <fstream>
 #include <pluginlib/class_list_macros.hpp>
 #include <sstream>
+#include <thread>
 
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/common/statistics.h"
@@ -102,6 +103,14 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
   }
   is_fallback_ = choice.is_fallback;
   estimator_problem_ = choice.problem;
+  if (estimator_ && pnh_.param("warm_up", true)) {
+    // Before the first image: a pattern head's first images would otherwise
+    // compute its design's diffraction cache (seconds each on thesis_ca).
+    const ros::WallTime start = ros::WallTime::now();
+    estimator_->warmUp(static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
+    const double took_s = (ros::WallTime::now() - start).toSec();
+    if (took_s > 0.5) ROS_INFO("calibration_node: estimator warmed up in %.1f s", took_s);
+  }
   if (!estimator_) {
     ROS_ERROR("calibration_node: no estimator: %s. Every image will be answered valid=false (no_estimator).",
               estimator_problem_.c_str());

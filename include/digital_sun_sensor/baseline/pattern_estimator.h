@@ -72,6 +72,10 @@ class PatternEstimator : public SunEstimator {
   // sought in its quadrant (plus the field margin across its axes).
   std::vector<SunEstimate> estimateWithSubFovHints(const std::vector<cv::Mat>& images,
                                                    const std::vector<int>& subfov_classes) override;
+  // The design's spot shapes over the field, which its alias decisions and
+  // unexplained-light check render (else computed on first use: the first
+  // images of thesis_ca took up to seconds).
+  void warmUp(int threads) const override { design_.warmUp(threads); }
 
   // Within `window` (default: the field of view plus the margin).
   SunEstimate estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window = {}) const;

@@ -50,6 +50,10 @@ class SunEstimator {
     (void)subfov_classes;
     throw std::invalid_argument("the " + source() + " estimator takes no sub-FOV hint");
   }
+  // Does now, on `threads` threads, the one-off work its first images would
+  // otherwise pay for (the pattern head's diffraction cache of its design:
+  // seconds); a no-op for the others.
+  virtual void warmUp(int threads) const { (void)threads; }
 };
 
 }  // namespace dss

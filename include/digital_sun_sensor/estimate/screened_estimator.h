@@ -56,6 +56,7 @@ class ScreenedEstimator : public SunEstimator {
   // The hints of the images that pass go to the inner estimator.
   std::vector<SunEstimate> estimateWithSubFovHints(const std::vector<cv::Mat>& images,
                                                    const std::vector<int>& subfov_classes) override;
+  void warmUp(int threads) const override { inner_->warmUp(threads); }
 
   // The image as the inner estimator is given it: hot pixels repaired and lit
   // groups under min_spot_px removed (what a consumer that re-reads the same

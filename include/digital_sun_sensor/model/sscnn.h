@@ -91,6 +91,9 @@ class SscnnNetImpl : public torch::nn::Module {
   // its template: seconds for a large mask), and how the sites' values map
   // back to the image's digital numbers (no-op for other heads).
   void initPattern(const SensorConfig& config, const InputSpec& input);
+  // Pattern head: its design's diffraction cache computed now, on `threads`
+  // threads (PatternEstimator::warmUp; no-op for other heads).
+  void warmUp(int threads) const;
   // The geometric head's geometry (null for other heads): what a unit
   // calibration fits.
   SensorGeometry geometry() const { return geometry_; }

@@ -36,6 +36,7 @@ class SscnnEstimator : public SunEstimator {
   double mismatchThreshold() const;
   std::string unitCalibration() const;
   std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
+  void warmUp(int threads) const override;
 
   // In-flight recalibration (geometric heads; the caller serialises these
   // with estimate()): the network's reading of images with their reference
