@@ -198,7 +198,7 @@ TEST(ShippedModels, ThesisSa) { expectHeadline("thesis_sa", 400); }
 TEST(ShippedModels, ThesisSaT50) { expectHeadline("thesis_sa_t50", 400); }
 TEST(ShippedModels, ThesisMa) { expectHeadline("thesis_ma", 400); }
 TEST(ShippedModels, WideMa) { expectHeadline("wide_ma", 300); }
-TEST(ShippedModels, ThesisCa) { expectHeadline("thesis_ca", 150); }  // the pattern head: ~0.2 s per image
+TEST(ShippedModels, ThesisCa) { expectHeadline("thesis_ca", 150); }  // the pattern head: ~0.1 s per image
 // The family models a built unit is calibrated from (geometric head), on their designs.
 TEST(ShippedModels, ThesisSaFamily) { expectHeadline("thesis_sa_family", 400); }
 TEST(ShippedModels, ThesisMaFamily) { expectHeadline("thesis_ma_family", 400); }
