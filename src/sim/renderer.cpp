@@ -69,25 +69,13 @@ void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double c
   }
 }
 
-// An image's spot for an aperture shape: the cache's blend, and where
-// apertures of that shape are several, the blend composed into one map.
+// An image's spot for an aperture shape: what is splatted (the cache's
+// blend, or its composition into one map where several apertures share it)
+// and its power.
 struct ShapeSpot {
-  SpotCache::Blend blend;
   int apertures = 0;
   double power_um2 = 0.0;
-  std::shared_ptr<const SpotMap> composed;
-
-  void add(cv::Mat& image, double cx_um, double cy_um, double scale, double pitch_um) const {
-    if (!composed) {
-      splat(image, blend, cx_um, cy_um, scale, pitch_um);
-      return;
-    }
-    SpotCache::Blend one;
-    one.maps[0] = composed;
-    one.weights[0] = 1.0f;
-    one.count = 1;
-    splat(image, one, cx_um, cy_um, scale, pitch_um);
-  }
+  SpotCache::Blend drawn;
 };
 
 }  // namespace
@@ -189,21 +177,25 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
       continue;
     }
     ShapeSpot& shape = shapes.at(keys[i]);
-    if (shape.blend.count == 0) {  // the shape's first aperture on the detector
-      shape.blend = cache_->lookup(geometry, sun_mask);
-      for (int k = 0; k < shape.blend.count; ++k)
-        shape.power_um2 += shape.blend.weights[k] * shape.blend.maps[k]->total_power_um2;
-      if (shape.apertures > 1 && shape.blend.count > 1)
-        shape.composed = std::make_shared<const SpotMap>(shape.blend.composed());
+    if (shape.drawn.count == 0) {  // the shape's first aperture on the detector
+      const SpotCache::Blend blend = cache_->lookup(geometry, sun_mask);
+      for (int k = 0; k < blend.count; ++k) shape.power_um2 += blend.weights[k] * blend.maps[k]->total_power_um2;
+      shape.drawn = blend;
+      if (shape.apertures > 1 && blend.count > 1) {
+        shape.drawn = SpotCache::Blend{};
+        shape.drawn.maps[0] = std::make_shared<const SpotMap>(blend.composed());
+        shape.drawn.weights[0] = 1.0f;
+        shape.drawn.count = 1;
+      }
     }
     spot.relative_flux =
         static_cast<float>(shape.power_um2 / ApertureGeometry::from(c.mask.apertures[i]).nominalAreaUm2());
-    shape.add(rate, hit->x(), hit->y(), electron_rate_, pitch);
+    splat(rate, shape.drawn, hit->x(), hit->y(), electron_rate_, pitch);
     if (ghost) {
       // Detector -> mask underside -> detector: one more round trip of the
       // lateral drift, attenuated by both reflectances.
       const Eigen::Vector2d ghost_at = *hit + 2.0 * (*hit - ap.head<2>());
-      shape.add(rate, ghost_at.x(), ghost_at.y(), electron_rate_ * c.anomalies.ghost_reflectance, pitch);
+      splat(rate, shape.drawn, ghost_at.x(), ghost_at.y(), electron_rate_ * c.anomalies.ghost_reflectance, pitch);
     }
     t.spots.push_back(spot);
   }
