@@ -12,7 +12,7 @@ Keys:
                     BAG = {name, count, seed, [offset], [sampling], [anomalies]}
                     and the bag is DATA/<model>.<name>.bag
   train             {arch, epochs, lr, seed, centroid_weighting, feature_corrections,
-                    [lattice_phase], [head]}: dss train options
+                    [lattice_phase], [head], [value_saturation]}: dss train options
   calibrate_sigma   {correction_degree: keep|none|D, symmetry: keep|none|flips|dihedral,
                     [unit_tolerances: K], [nominal_bags: [NAME, ...]]}: K (geometric head) adds
                     the error of a unit built to K x typical tolerances to sigma, for a family model
@@ -114,7 +114,7 @@ def main():
     check(path, "bags", recipe["bags"], ("train", "test", "sigma"))
     train = recipe["train"]
     check(path, "train", train, ("arch", "epochs", "lr", "seed", "centroid_weighting", "feature_corrections"),
-          ("lattice_phase", "head"))
+          ("lattice_phase", "head", "value_saturation"))
     sigma = recipe["calibrate_sigma"]
     check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"), ("unit_tolerances", "nominal_bags"))
     sigma_names = [str(b.get("name")) for b in recipe["bags"]["sigma"] if isinstance(b, dict)]
@@ -138,6 +138,7 @@ def main():
         "FEATURES": str(train["feature_corrections"]).lower().replace("true", "on").replace("false", "off"),
         "LATTICE_PHASE": str(train.get("lattice_phase", "")),
         "HEAD": str(train.get("head", "")),
+        "VALUE_SATURATION": str(train.get("value_saturation", "")),
         "CORRECTION": str(sigma["correction_degree"]),
         "SYMMETRY": str(sigma["symmetry"]),
         "UNIT_TOLERANCES": str(sigma.get("unit_tolerances", "keep")),

@@ -52,6 +52,7 @@ for model in "${models[@]}"; do
   phase=()
   [ -n "$LATTICE_PHASE" ] && phase=(--lattice-phase "$LATTICE_PHASE")
   [ -n "$HEAD" ] && phase+=(--head "$HEAD")
+  [ -n "$VALUE_SATURATION" ] && phase+=(--value-saturation "$VALUE_SATURATION")
   train_and_evaluate "$model" "${train# }" "$test" "${sigma# }" "$EPOCHS" "$ARCH" "$CORRECTION" "$SYMMETRY" \
     --centroid-weighting "$WEIGHTING" --feature-corrections "$FEATURES" "${phase[@]}" --lr "$LR" --seed "$TRAIN_SEED"
 done

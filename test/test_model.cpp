@@ -238,6 +238,47 @@ TEST(Sscnn, CentroidWeightingStartsAsPlainOrIntensityWeightedCentroid) {
   EXPECT_LT((intensity.net->forwardDense(dense).angles[0] - weighted_angles[0]).abs().max().item<double>(), 1e-9);
 }
 
+// With a value saturation S the intensity-weighted centroid weighs each site
+// by v / (1 + S v): the angles move to that centroid (through the same linear
+// prior), the dense pass agrees, the file keeps S and refuses a negative one.
+TEST(Sscnn, ValueSaturationWeighsSitesBySaturatedValue) {
+  const SensorConfig c = shipped("thesis_sa");
+  ArchSpec arch = archPreset("resnet10_w16", c.numSubFovClasses());
+  arch.centroid_weighting = CentroidWeighting::kIntensity;
+  const Model plain = createModel(c, arch, 4);
+  arch.value_saturation = 2.0;
+  const Model saturated = createModel(c, arch, 4);
+  EXPECT_EQ(deserializeModel(serializeModel(saturated), "saturated", &c).meta.arch.value_saturation, 2.0);
+  EXPECT_EQ(deserializeModel(serializeModel(plain), "plain", &c).meta.arch.value_saturation, 0.0);
+  std::string yaml = metadataToYaml(saturated.meta);
+  const auto at = yaml.find("value_saturation: 2");
+  ASSERT_NE(at, std::string::npos) << yaml;
+  yaml.replace(at, std::string("value_saturation: 2").size(), "value_saturation: -1");
+  EXPECT_THROW(metadataFromYaml(yaml, "test"), ModelError);
+
+  torch::NoGradGuard no_grad;
+  const auto input = encodeImages(imageList(), plain.meta.input, torch::kDouble);
+  plain.net->to(torch::kDouble);
+  saturated.net->to(torch::kDouble);
+  const auto index = sparse::batchIndex(*input.sites);
+  const auto value = input.features.slice(1, 0, 1), xy = input.features.slice(1, 1, 3);
+  auto centroid = [&](const torch::Tensor& w) {
+    const auto sum = [&](const torch::Tensor& v) {
+      return torch::zeros({input.sites->batchSize(), v.size(1)}, v.options()).index_add(0, index, v);
+    };
+    return sum(w * xy) / sum(w);
+  };
+  const auto weighted_centroid = centroid(value), saturated_centroid = centroid(value / (1.0 + 2.0 * value));
+  ASSERT_GT((weighted_centroid - saturated_centroid).abs().max().item<double>(), 1e-5);  // the test tells them apart
+  const auto plain_angles = plain.net->forward(input).angles;
+  const auto saturated_angles = saturated.net->forward(input).angles;
+  const auto slope = plain_angles[0] / weighted_centroid[0];
+  EXPECT_LT((plain_angles - weighted_centroid * slope).abs().max().item<double>(), 1e-7);
+  EXPECT_LT((saturated_angles - saturated_centroid * slope).abs().max().item<double>(), 1e-7);
+  const auto dense = encodeImagesDense({images()[0].image}, saturated.meta.input).to(torch::kDouble);
+  EXPECT_LT((saturated.net->forwardDense(dense).angles[0] - saturated_angles[0]).abs().max().item<double>(), 1e-9);
+}
+
 // With feature corrections off the angles are a function of the spot
 // position alone: whatever the MLP's output layer holds, they do not move,
 // while with them on they do; the choice survives the model file.

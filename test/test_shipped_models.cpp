@@ -151,6 +151,7 @@ TEST(ShippedModels, EveryRecipeDescribesItsModelFile) {
     options.feature_corrections = train["feature_corrections"].as<std::string>();
     if (train["lattice_phase"]) options.lattice_phase = train["lattice_phase"].as<std::string>();
     if (train["head"]) options.head = train["head"].as<std::string>();
+    if (train["value_saturation"]) options.value_saturation = train["value_saturation"].as<double>();
     const FreshModelDesign design = freshModelDesign(sensor, options);
     const YAML::Node made = YAML::Load(metadataToYaml(metadataFor(sensor, design.arch, design.head)));
     const YAML::Node shipped = YAML::Load(metadataToYaml(m));

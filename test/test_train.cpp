@@ -276,6 +276,14 @@ TEST(Train, InitModelGivesTheStartingWeights) {
     EXPECT_NE(std::string(e.what()).find("has centroid weighting learned, not value"), std::string::npos) << e.what();
   }
   options.centroid_weighting = "";
+  options.value_saturation = 1.0;  // the init model's is 0
+  try {
+    Trainer(tinySensor(), train, validation, options);
+    ADD_FAILURE() << "an init model of another value saturation was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("has value saturation"), std::string::npos) << e.what();
+  }
+  options.value_saturation = -1.0;
   options.init_model = tempPath("missing.dssmodel");
   try {
     Trainer(tinySensor(), train, validation, options);
@@ -310,6 +318,9 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
   TrainOptions other_weighting = options;
   other_weighting.centroid_weighting = "value";
   EXPECT_NE(resumeError(other_weighting, train).find("centroid_weighting"), std::string::npos);
+  TrainOptions other_saturation = options;
+  other_saturation.value_saturation = 2.0;
+  EXPECT_NE(resumeError(other_saturation, train).find("value_saturation"), std::string::npos);
   TrainOptions other_corrections = options;
   other_corrections.feature_corrections = "off";
   EXPECT_NE(resumeError(other_corrections, train).find("feature_corrections"), std::string::npos);

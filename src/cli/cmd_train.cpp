@@ -39,6 +39,10 @@ int runTrain(int argc, char** argv) {
            "centroid at the start) or intensity (the intensity-weighted centroid, nothing learned); default: the "
            "--init model's, else value with the geometric head and learned with the others",
            "", false, false},
+          {"value-saturation", "S",
+           "pixel values v (full scale 1) enter the value and intensity weights as v / (1 + S v) (0: as v; the "
+           "brightest pixels are the noisiest); default: the --init model's, else 0",
+           "", false, false},
           {"feature-corrections", "ON_OFF",
            "angle corrections from the pooled backbone features (on), or the angles a smooth function of the spot "
            "position alone (off); default: the --init model's, else on",
@@ -94,6 +98,7 @@ int runTrain(int argc, char** argv) {
   options.arch = args.get("arch");
   options.init_model = args.get("init");
   options.centroid_weighting = args.get("centroid-weighting");
+  if (!args.get("value-saturation").empty()) options.value_saturation = args.getDouble("value-saturation");
   options.feature_corrections = args.get("feature-corrections");
   options.lattice_phase = args.get("lattice-phase");
   options.head = args.get("head");

@@ -211,6 +211,7 @@ std::string metadataToYaml(const ModelMetadata& m) {
   e << YAML::Key << "centroid_pool" << YAML::Value << m.arch.centroid_pool;
   e << YAML::Key << "centroid_width" << YAML::Value << m.arch.centroid_width;
   e << YAML::Key << "centroid_weighting" << YAML::Value << centroidWeightingName(m.arch.centroid_weighting);
+  e << YAML::Key << "value_saturation" << YAML::Value << m.arch.value_saturation;
   e << YAML::Key << "centroid_degree" << YAML::Value << m.arch.centroid_degree;
   e << YAML::Key << "residual_scale" << YAML::Value << m.arch.residual_scale;
   e << YAML::Key << "feature_corrections" << YAML::Value << m.arch.feature_corrections;
@@ -334,6 +335,11 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     } catch (const std::invalid_argument& e) {
       throw ModelError(origin + ": metadata key 'arch.centroid_weighting': " + e.what());
     }
+  }
+  if (a["value_saturation"]) {  // absent in models made before it existed: 0
+    m.arch.value_saturation = get<double>(a, "value_saturation", origin, "arch.");
+    if (!(m.arch.value_saturation >= 0.0) || !std::isfinite(m.arch.value_saturation))
+      throw ModelError(origin + ": metadata key 'arch.value_saturation' must be finite and >= 0");
   }
   m.arch.centroid_degree = get<int>(a, "centroid_degree", origin, "arch.");
   m.arch.residual_scale = get<double>(a, "residual_scale", origin, "arch.");

@@ -17,7 +17,9 @@ using sparse::RulebookCache;
 using sparse::SparseTensor;
 namespace F = torch::nn::functional;
 
-torch::Tensor SscnnNetImpl::centroidWeights(const torch::Tensor& logits, const torch::Tensor& value) const {
+torch::Tensor SscnnNetImpl::centroidWeights(const torch::Tensor& logits, const torch::Tensor& raw_value) const {
+  const torch::Tensor value =
+      arch_.value_saturation > 0.0 ? raw_value / (1.0 + arch_.value_saturation * raw_value) : raw_value;
   if (arch_.centroid_weighting == CentroidWeighting::kIntensity) return value;
   const torch::Tensor learned = torch::softplus(logits);  // log(2) where the branch outputs 0 (its start)
   if (arch_.centroid_weighting == CentroidWeighting::kLearned) return learned;

@@ -30,6 +30,7 @@ TrainOptions optionsFromParams(const ros::NodeHandle& pnh) {
   o.arch = pnh.param<std::string>("arch", "");
   o.init_model = pnh.param<std::string>("init_model", "");
   o.centroid_weighting = pnh.param<std::string>("centroid_weighting", "");
+  o.value_saturation = pnh.param("value_saturation", o.value_saturation);
   o.feature_corrections = pnh.param<std::string>("feature_corrections", "");
   o.lattice_phase = pnh.param<std::string>("lattice_phase", "");
   o.head = pnh.param<std::string>("head", "");

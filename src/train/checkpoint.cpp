@@ -75,6 +75,7 @@ std::string Trainer::Impl::stateYaml(double elapsed_s) const {
   e << YAML::Key << "sensor" << YAML::Value << sensor.name;
   e << YAML::Key << "arch" << YAML::Value << options.arch;
   e << YAML::Key << "centroid_weighting" << YAML::Value << options.centroid_weighting;
+  e << YAML::Key << "value_saturation" << YAML::Value << std::to_string(options.value_saturation);
   e << YAML::Key << "feature_corrections" << YAML::Value << options.feature_corrections;
   e << YAML::Key << "lattice_phase" << YAML::Value << options.lattice_phase;
   e << YAML::Key << "head" << YAML::Value << options.head;
@@ -128,6 +129,8 @@ void Trainer::Impl::resume(const std::string& path) {
     expect("arch", options.arch);
     if (state["centroid_weighting"])  // absent in checkpoints made before it existed
       expect("centroid_weighting", options.centroid_weighting);
+    if (state["value_saturation"])  // absent in checkpoints made before it existed
+      expect("value_saturation", std::to_string(options.value_saturation));
     if (state["feature_corrections"])  // absent in checkpoints made before it existed
       expect("feature_corrections", options.feature_corrections);
     if (state["lattice_phase"])  // absent in checkpoints made before it existed

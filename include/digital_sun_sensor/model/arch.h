@@ -56,6 +56,12 @@ struct ArchSpec {
   bool centroid_pool = true;  // learned intensity-weighted centroid of the input sites
   int centroid_width = 16;    // channels of its weighting branch
   CentroidWeighting centroid_weighting = CentroidWeighting::kLearned;
+  // The pixel value v (full scale 1) enters the value and intensity weights as
+  // v / (1 + value_saturation * v); 0: as v. The brightest pixels carry the
+  // most noise (shot and PRNU) for no more position than their neighbours, so
+  // a saturating weight lowers the spots' noise where the spots are broad
+  // (measured: docs/sscnn.md#value-saturation).
+  double value_saturation = 0.0;
   int centroid_degree = 3;  // the angles get a learned polynomial of the centroid (degree 1..this)
   // Learned angle terms are multiplied by this (normalized units): on top of the
   // physics prior they are corrections, and Adam's per-step change of a weight
