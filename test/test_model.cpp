@@ -186,6 +186,15 @@ TEST(ModelFile, MetadataRejectsUnknownKeys) {
   EXPECT_TRUE(contains(errorOf(nested), "arch.lattice_row: unknown key")) << errorOf(nested);
 }
 
+// The w-weighted centroid of each image's sites (normalized x, y).
+torch::Tensor siteCentroid(const sparse::SparseTensor& input, const torch::Tensor& w) {
+  const auto index = sparse::batchIndex(*input.sites);
+  const auto sum = [&](const torch::Tensor& v) {
+    return torch::zeros({input.sites->batchSize(), v.size(1)}, v.options()).index_add(0, index, v);
+  };
+  return sum(w * input.features.slice(1, 1, 3)) / sum(w);
+}
+
 // Untrained, the centroid branch is the plain centre of the lit sites
 // (learned weights) or their intensity-weighted centroid (value weighting,
 // and intensity weighting, which stays so whatever the branch's weights),
@@ -210,14 +219,8 @@ TEST(Sscnn, CentroidWeightingStartsAsPlainOrIntensityWeightedCentroid) {
   const auto input = encodeImages(imageList(), plain.meta.input, torch::kDouble);
   plain.net->to(torch::kDouble);
   weighted.net->to(torch::kDouble);
-  const auto index = sparse::batchIndex(*input.sites);
-  const auto value = input.features.slice(1, 0, 1), xy = input.features.slice(1, 1, 3);
-  auto centroid = [&](const torch::Tensor& w) {
-    const auto sum = [&](const torch::Tensor& v) {
-      return torch::zeros({input.sites->batchSize(), v.size(1)}, v.options()).index_add(0, index, v);
-    };
-    return sum(w * xy) / sum(w);
-  };
+  const auto value = input.features.slice(1, 0, 1);
+  auto centroid = [&](const torch::Tensor& w) { return siteCentroid(input, w); };
   const auto plain_centroid = centroid(torch::ones_like(value)), weighted_centroid = centroid(value);
   ASSERT_GT((plain_centroid - weighted_centroid).abs().max().item<double>(), 1e-4);  // the test tells them apart
   const auto plain_angles = plain.net->forward(input).angles, weighted_angles = weighted.net->forward(input).angles;
@@ -260,14 +263,8 @@ TEST(Sscnn, ValueSaturationWeighsSitesBySaturatedValue) {
   const auto input = encodeImages(imageList(), plain.meta.input, torch::kDouble);
   plain.net->to(torch::kDouble);
   saturated.net->to(torch::kDouble);
-  const auto index = sparse::batchIndex(*input.sites);
-  const auto value = input.features.slice(1, 0, 1), xy = input.features.slice(1, 1, 3);
-  auto centroid = [&](const torch::Tensor& w) {
-    const auto sum = [&](const torch::Tensor& v) {
-      return torch::zeros({input.sites->batchSize(), v.size(1)}, v.options()).index_add(0, index, v);
-    };
-    return sum(w * xy) / sum(w);
-  };
+  const auto value = input.features.slice(1, 0, 1);
+  auto centroid = [&](const torch::Tensor& w) { return siteCentroid(input, w); };
   const auto weighted_centroid = centroid(value), saturated_centroid = centroid(value / (1.0 + 2.0 * value));
   ASSERT_GT((weighted_centroid - saturated_centroid).abs().max().item<double>(), 1e-5);  // the test tells them apart
   const auto plain_angles = plain.net->forward(input).angles;
