@@ -75,7 +75,6 @@ family() {
   if [ ! -f $F.family.dssmodel ]; then
     if [ ! -f $F.dssmodel ]; then
       log "design: the family model ($EPOCHS epochs; log $F.train.log)"
-      # VALUE_SATURATION 0 by default: the tables in README were measured before dss train's default became 1.
       "$DSS" train --data $F.train.bag --head geometric --epochs "$EPOCHS" --value-saturation "$VALUE_SATURATION" \
         --out $F.dssmodel >$F.train.log 2>&1
     fi

@@ -120,13 +120,12 @@ FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& opti
   // Site weights: the geometric head starts from the intensity-weighted
   // centroid of each spot (the baseline's, and its search anchors on the
   // brightest site), the other heads from equal weights.
-  const bool geometric = metadataFor(sensor, d.arch, d.head).arch.geometric_head;
-  if (options.centroid_weighting.empty()) options.centroid_weighting = geometric ? "value" : "learned";
+  if (options.centroid_weighting.empty())
+    options.centroid_weighting = metadataFor(sensor, d.arch, d.head).arch.geometric_head ? "value" : "learned";
   d.arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
-  // The geometric head's spots weigh v / (1 + v): on five sensors' spots no
-  // noisier than v, 16 % less noisy on a broad-spot mask (docs/sscnn.md#value-saturation).
-  if (options.value_saturation < 0.0)
-    options.value_saturation = geometric ? kGeometricValueSaturation : 0.0;
+  // 0 by default: S = 1 took mask F from 1.54 to 1.33 x the readout bound but
+  // mask E, trained, from 1.11 to 1.21 (docs/sscnn.md#value-saturation).
+  if (options.value_saturation < 0.0) options.value_saturation = 0.0;
   d.arch.value_saturation = options.value_saturation;
   return d;
 }

@@ -32,8 +32,6 @@ constexpr int kEpochsAuto = -1;
 constexpr int kGeometricHeadEpochs = 2;
 constexpr int kClassicHeadEpochs = 20;
 constexpr int kPatternHeadEpochs = 0;  // the model as created: nothing in its solve trains by gradient
-// dss train's value saturation for a new geometric head (ArchSpec::value_saturation).
-constexpr double kGeometricValueSaturation = 1.0;
 
 struct TrainOptions {
   std::string arch;  // architecture preset (empty: the init model's, else defaultArchName())
@@ -43,8 +41,7 @@ struct TrainOptions {
   // Site weights of the centroid branch: "learned", "value" or "intensity" (ArchSpec::
   // centroid_weighting; empty: the init model's, else "value" with the geometric head, "learned" with the others).
   std::string centroid_weighting;
-  // ArchSpec::value_saturation (>= 0); negative: the init model's, else
-  // kGeometricValueSaturation with the geometric head, 0 with the others.
+  // ArchSpec::value_saturation (>= 0); negative: the init model's, else 0.
   double value_saturation = -1.0;
   // Angle corrections from the pooled features: "on" or "off" (ArchSpec::
   // feature_corrections; empty: the init model's, else "on").
