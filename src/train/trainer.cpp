@@ -123,8 +123,8 @@ FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& opti
   if (options.centroid_weighting.empty())
     options.centroid_weighting = metadataFor(sensor, d.arch, d.head).arch.geometric_head ? "value" : "learned";
   d.arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
-  // 0 by default: S = 1 took mask F from 1.54 to 1.33 x the readout bound but
-  // mask E, trained, from 1.11 to 1.21 (docs/sscnn.md#value-saturation).
+  // 0 by default: trained with S = 1, mask F went from 1.54 to 1.33 x the readout
+  // bound, masks A and E from 1.21 to 1.32 and 1.11 to 1.21 (docs/sscnn.md#value-saturation).
   if (options.value_saturation < 0.0) options.value_saturation = 0.0;
   d.arch.value_saturation = options.value_saturation;
   return d;
