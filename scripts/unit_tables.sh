@@ -20,7 +20,7 @@
 #   FAMILY=thesis_ma scripts/unit_tables.sh table   the tables from what is there
 # Data in $DATA_DIR (default .ws/units_data/$FAMILY); every file that exists is
 # reused, so a cut run continues where it stopped. Knobs (environment): UNITS,
-# SCALES, NS, DRIFT_UNITS, EPOCHS and VALUE_SATURATION (mask A's family model), JOBS (units in
+# SCALES, NS, DRIFT_UNITS, EPOCHS (mask A's family model), JOBS (units in
 # parallel, default 2).
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
@@ -47,7 +47,6 @@ SCALES="${SCALES:-1 3}"
 NS="${NS:-0 10 25 50 100 400}"
 DRIFT_UNITS="${DRIFT_UNITS:-$first $((first + 1)) $((first + 2))}"
 EPOCHS="${EPOCHS:-2}"
-VALUE_SATURATION="${VALUE_SATURATION:-0}"
 JOBS="${JOBS:-2}"
 mkdir -p "$DATA"
 cd "$DATA"
@@ -75,8 +74,7 @@ family() {
   if [ ! -f $F.family.dssmodel ]; then
     if [ ! -f $F.dssmodel ]; then
       log "design: the family model ($EPOCHS epochs; log $F.train.log)"
-      "$DSS" train --data $F.train.bag --head geometric --epochs "$EPOCHS" --value-saturation "$VALUE_SATURATION" \
-        --out $F.dssmodel >$F.train.log 2>&1
+      "$DSS" train --data $F.train.bag --head geometric --epochs "$EPOCHS" --out $F.dssmodel >$F.train.log 2>&1
     fi
     # sigma, the input envelope and the spot-mismatch level of the design (what model_mismatch is judged against)
     quiet "$DSS" calibrate-sigma --model $F.dssmodel --data $F.sigma.bag --out $F.family.dssmodel
