@@ -14,7 +14,7 @@
 # adds options to `dss train` (default: none, the defaults).
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
-MASKS="${MASKS:-A B D E F}"
+MASKS="${MASKS:-A B D E F G H I}"
 DATA="${DATA_DIR:-$WS/irregular_data}"
 read -r -a TRAIN_OPTIONS <<<"${TRAIN_OPTIONS:-}"
 mkdir -p "$DATA"
@@ -45,7 +45,19 @@ draw() {
     E) sets=(detector.width_px=752 detector.height_px=480 detector.pitch_um=6.0 mask.height_mm=6.0
          threshold.level_fraction=0.6 fov.alpha_max_deg=5 fov.beta_max_deg=5)
        draw_opts=(--diameter-um 150 --apertures 8 --seed 53 --name irregular_8) SEEDS=(9501 9502) COUNT=12000 ;;
-    *) echo "irregular_masks.sh: unknown mask '$m' (A, B, D, E, F)" >&2; exit 2 ;;
+    # G: six apertures on a fine-pitch detector (drawn after A to F were tuned).
+    G) sets=(detector.width_px=800 detector.height_px=600 detector.pitch_um=2.5 mask.height_mm=3.5
+         detector_noise.bit_depth=10 threshold.level_fraction=0.6 fov.alpha_max_deg=7 fov.beta_max_deg=7)
+       draw_opts=(--apertures 6 --min-whole-spots 2 --seed 61) SEEDS=(9601 9602) COUNT=12000 ;;
+    # H and I: drawn after the site weights and the value saturation choice were settled on A to G.
+    H) sets=(detector.width_px=720 detector.height_px=540 detector.pitch_um=3.45 mask.height_mm=3.0
+         detector_noise.bit_depth=8 threshold.level_fraction=0.4 fov.alpha_max_deg=10 fov.beta_max_deg=10)
+       draw_opts=(--diameter-um 80 --apertures 4 --min-whole-spots 1 --seed 71 --name irregular_4)
+       SEEDS=(9701 9702) COUNT=12000 ;;
+    I) sets=(detector.width_px=640 detector.height_px=640 detector.pitch_um=5.0 mask.height_mm=5.0
+         detector_noise.bit_depth=12 threshold.level_fraction=0.8 fov.alpha_max_deg=6 fov.beta_max_deg=6)
+       draw_opts=(--diameter-um 120 --apertures 10 --seed 83 --name irregular_10) SEEDS=(9801 9802) COUNT=12000 ;;
+    *) echo "irregular_masks.sh: unknown mask '$m' (A, B, D, E, F, G, H, I)" >&2; exit 2 ;;
   esac
   local s set_args=()
   for s in "${sets[@]}"; do set_args+=(--set "$s"); done

@@ -74,7 +74,9 @@ family() {
   if [ ! -f $F.family.dssmodel ]; then
     if [ ! -f $F.dssmodel ]; then
       log "design: the family model ($EPOCHS epochs; log $F.train.log)"
-      "$DSS" train --data $F.train.bag --head geometric --epochs "$EPOCHS" --out $F.dssmodel >$F.train.log 2>&1
+      # The site weights its tables were measured with (dss train's defaults until 2026-11-27).
+      "$DSS" train --data $F.train.bag --head geometric --epochs "$EPOCHS" --centroid-weighting value \
+        --value-saturation 0 --out $F.dssmodel >$F.train.log 2>&1
     fi
     # sigma, the input envelope and the spot-mismatch level of the design (what model_mismatch is judged against)
     quiet "$DSS" calibrate-sigma --model $F.dssmodel --data $F.sigma.bag --out $F.family.dssmodel

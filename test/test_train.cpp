@@ -1,8 +1,9 @@
 // Training core: a tiny model learns from a tiny simulated set; an interrupted
 // and resumed run reaches the same weights as an uninterrupted one; bad
 // checkpoints and options are rejected; augmentation is seeded; the post-hoc
-// angle correction removes a smooth bias on held-out images; the sigma
-// calibration of a mirror-averaged model covers as it reports.
+// angle correction removes a smooth bias on held-out images; the geometric
+// head's value saturation is chosen on them; the sigma calibration of a
+// mirror-averaged model covers as it reports.
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
 
@@ -23,6 +24,7 @@
 #include "digital_sun_sensor/train/sigma_calibration.h"
 #include "digital_sun_sensor/train/trainer.h"
 #include "digital_sun_sensor/train/validation_error.h"
+#include "digital_sun_sensor/train/value_saturation_choice.h"
 
 namespace dss {
 namespace {
@@ -203,6 +205,65 @@ TEST(Train, TrainingSetSmallerThanABatchTrains) {
 
 // --epochs 0: the model as created (a geometric head's design), validated
 // once and saved with its sigma and input envelope, its weights untouched.
+// A geometric head left to dss train's defaults reads intensity weights and
+// gets the value saturation whose held-out angle correction reads the
+// validation images best, with that correction; a given one is kept.
+TEST(Train, GeometricHeadChoosesItsValueSaturationOnHeldOutImages) {
+  RandomMaskOptions mask;
+  mask.apertures = 3;
+  mask.diameter_um = 60.0;
+  mask.min_whole_spots = 1;
+  const SensorConfig design =
+      drawRandomMask(loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml",
+                                      {"optics.psf_node_step_deg=3", "mask.height_mm=2.5"}),
+                     mask, 2)
+          .config;
+  const TrainingSet all = simulate(design, 200, 31);
+  TrainingSet train{all.spec()}, validation{all.spec()};
+  all.split(0.5, 1, train, validation);
+  TrainOptions options = tinyOptions();
+  options.epochs = 0;
+  const std::string path = tempPath("saturation.dssmodel");
+  std::atomic<bool> stop{false};
+  Trainer chooser(design, train, validation, options);
+  chooser.run({}, stop);
+  const std::string line = chooser.saveModel(path, "test");
+  Model chosen = loadModel(path);
+  EXPECT_EQ(chosen.meta.arch.centroid_weighting, CentroidWeighting::kIntensity);
+  const YAML::Node metrics = YAML::Load(chosen.meta.metrics_yaml);
+  ASSERT_TRUE(metrics["value_saturation_cv_rms_deg"]) << chosen.meta.metrics_yaml;
+  // The rule, from the recorded scores: least RMS, a later candidate only 1 % better.
+  double expected = 0.0, best = 0.0;
+  for (const double s : valueSaturationCandidates()) {
+    const double rms = metrics["value_saturation_cv_rms_deg"][s].as<double>();
+    if (s == 0.0 || rms < 0.99 * best) expected = s, best = rms;
+  }
+  EXPECT_EQ(chosen.meta.arch.value_saturation, expected);
+  EXPECT_EQ(metrics["value_saturation"].as<double>(), expected);
+  EXPECT_NE(line.find("value saturation"), std::string::npos) << line;
+  std::printf("%s\n", line.c_str());
+  // The correction written is the one refitted at the chosen saturation.
+  const AngleCorrection written = chosen.meta.angle_correction;
+  chooseValueSaturation(chosen, validation, validation.size(), 8, {expected});
+  EXPECT_EQ(chosen.meta.angle_correction.degree, written.degree);
+  ASSERT_EQ(chosen.meta.angle_correction.alpha.size(), written.alpha.size());
+  for (std::size_t k = 0; k < written.alpha.size(); ++k)
+    EXPECT_NEAR(chosen.meta.angle_correction.alpha[k], written.alpha[k], 1e-12);
+
+  options.value_saturation = 1.0;
+  Trainer given(design, train, validation, options);
+  given.run({}, stop);
+  EXPECT_EQ(given.saveModel(path, "test"), "");
+  const Model kept = loadModel(path);
+  std::remove(path.c_str());
+  EXPECT_EQ(kept.meta.arch.value_saturation, 1.0);
+  EXPECT_FALSE(YAML::Load(kept.meta.metrics_yaml)["value_saturation_cv_rms_deg"]);
+
+  EXPECT_THROW(chooseValueSaturation(chosen, validation, 100, 8, {0.0, -1.0}), std::invalid_argument);
+  Model classic = createModel(tinySensor(), "resnet10_w16");
+  EXPECT_THROW(chooseValueSaturation(classic, tinySet(), 100, 8), std::invalid_argument);
+}
+
 TEST(Train, ZeroEpochsWritesTheModelAsCreated) {
   TrainingSet train{tinySet().spec()}, validation{tinySet().spec()};
   tinySet().split(0.2, 1, train, validation);

@@ -37,11 +37,13 @@ int runTrain(int argc, char** argv) {
           {"centroid-weighting", "W",
            "site weights of the centroid branch: learned (equal at the start), value (the intensity-weighted "
            "centroid at the start) or intensity (the intensity-weighted centroid, nothing learned); default: the "
-           "--init model's, else value with the geometric head and learned with the others",
+           "--init model's, else intensity with the geometric head and learned with the others",
            "", false, false},
           {"value-saturation", "S",
            "pixel values v (full scale 1) enter the value and intensity weights as v / (1 + S v) (0: as v; the "
-           "brightest pixels are the noisiest); default: the --init model's, else 0",
+           "brightest pixels are the noisiest); default: the --init model's, else for the geometric head the one of "
+           "0, 0.5, 1, 2 whose angle correction, fitted on the validation images, reads them best (0 for the "
+           "other heads)",
            "", false, false},
           {"feature-corrections", "ON_OFF",
            "angle corrections from the pooled backbone features (on), or the angles a smooth function of the spot "

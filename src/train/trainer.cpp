@@ -8,16 +8,29 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <iomanip>
+#include <sstream>
 
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
+#include "digital_sun_sensor/train/value_saturation_choice.h"
 #include "trainer_impl.h"
 
 namespace dss {
 namespace {
+
+// The richest angle correction the trainer fits on its validation images
+// (the degree is cross-validated; drawn masks A to G chose 1).
+constexpr int kHeldOutCorrectionMaxDegree = 8;
+
+std::string formatNumber(double x) {
+  std::ostringstream out;
+  out << std::setprecision(3) << x;
+  return out.str();
+}
 
 using Clock = std::chrono::steady_clock;
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
@@ -117,14 +130,17 @@ FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& opti
   d.head.lattice_spotwise_phase = options.lattice_phase == "spotwise";
   if (options.head.empty()) options.head = "auto";
   d.head.head = options.head;
-  // Site weights: the geometric head starts from the intensity-weighted
-  // centroid of each spot (the baseline's, and its search anchors on the
-  // brightest site), the other heads from equal weights.
-  if (options.centroid_weighting.empty())
-    options.centroid_weighting = metadataFor(sensor, d.arch, d.head).arch.geometric_head ? "value" : "learned";
+  // Site weights: the geometric head reads each spot's intensity-weighted
+  // centroid (the baseline's; its search anchors on the brightest site). A
+  // learned factor on them read drawn mask G 9 % worse than the baseline, the
+  // plain intensity level with it (docs/sscnn.md#site-weights). The other
+  // heads start from equal weights and learn them.
+  d.geometric_head = metadataFor(sensor, d.arch, d.head).arch.geometric_head;
+  if (options.centroid_weighting.empty()) options.centroid_weighting = d.geometric_head ? "intensity" : "learned";
   d.arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
-  // 0 by default: trained with S = 1, mask F went from 1.54 to 1.33 x the readout
-  // bound, masks A and E from 1.21 to 1.32 and 1.11 to 1.21 (docs/sscnn.md#value-saturation).
+  // Not given: the geometric head's is chosen on the validation images when
+  // the model is written (train/value_saturation_choice), trained with 0.
+  d.choose_value_saturation = d.geometric_head && options.value_saturation < 0.0;
   if (options.value_saturation < 0.0) options.value_saturation = 0.0;
   d.arch.value_saturation = options.value_saturation;
   return d;
@@ -174,6 +190,7 @@ Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOp
   } else {
     const FreshModelDesign design = freshModelDesign(sensor, options);
     model = createModel(sensor, design.arch, deriveSeed(options.seed, 0xA7C4), design.head);
+    choose_value_saturation = design.choose_value_saturation;
   }
   if (options.epochs == kEpochsAuto)
     options.epochs = model.meta.arch.pattern_head     ? kPatternHeadEpochs
@@ -322,8 +339,9 @@ TrainResult Trainer::run(const std::function<void(const TrainProgress&)>& on_pro
   return result;
 }
 
-void Trainer::saveModel(const std::string& path, const std::string& data_description) const {
+std::string Trainer::saveModel(const std::string& path, const std::string& data_description) const {
   const Impl& m = *impl_;
+  std::string finish;
   Model out = m.withMetadata(data_description);
   if (!m.best_model_bytes.empty()) {
     // The best validated weights, with the summary of the whole run.
@@ -333,6 +351,16 @@ void Trainer::saveModel(const std::string& path, const std::string& data_descrip
     YAML::Node metrics = YAML::Load(best.meta.metrics_yaml);
     metrics["best_epoch"] = m.best_epoch;
     best.meta.metrics_yaml = YAML::Dump(metrics);
+    if (m.choose_value_saturation) {
+      // With its angle correction refitted on the held-out images, which the
+      // network's own smooth correction may have left short of its least squares.
+      const ValueSaturationChoice c =
+          chooseValueSaturation(best, m.validation, m.options.validation_max, kHeldOutCorrectionMaxDegree);
+      finish = "value saturation " + formatNumber(c.chosen) + " chosen, angle correction of degree " +
+               std::to_string(c.correction.degree) + "; held-out RMS per candidate:";
+      for (std::size_t k = 0; k < c.candidates.size(); ++k)
+        finish += " " + formatNumber(c.candidates[k]) + ": " + formatNumber(c.cross_validated_rms_deg[k]) + " deg";
+    }
     // The level of the predicted sigma, fitted on the held-out images (on
     // this copy: the live network keeps training if the run goes on).
     calibrateSigma(best, m.validation, m.options.validation_max);
@@ -340,6 +368,7 @@ void Trainer::saveModel(const std::string& path, const std::string& data_descrip
     out = best;
   }
   ::dss::saveModel(out, path);
+  return finish;
 }
 
 }  // namespace dss

@@ -33,6 +33,9 @@ struct Trainer::Impl {
   Model model;
   std::unique_ptr<torch::optim::AdamW> optimizer;
   std::uint64_t data_fingerprint = 0;
+  // The value saturation was left to the trainer (a fresh geometric head):
+  // chosen on the validation images when the model is written.
+  bool choose_value_saturation = false;
 
   // Position and history: everything a resumed run needs besides weights.
   int epoch = 0;

@@ -32,7 +32,8 @@ TrainingJobResult runTrainingJob(const SensorConfig& sensor, const TrainingSet& 
   job.result = trainer.run(progress, stop);
   job.model_written = job.result.stop == TrainStop::finished || job.result.stop == TrainStop::early_stopped;
   if (job.model_written) {
-    trainer.saveModel(spec.output, spec.data_description);
+    const std::string finish = trainer.saveModel(spec.output, spec.data_description);
+    if (!finish.empty()) info(finish);
     info("wrote " + spec.output + " (" + toString(job.result.stop) + " after " +
          std::to_string(static_cast<long>(job.result.wall_s)) + " s)");
   } else {

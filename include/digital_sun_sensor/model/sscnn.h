@@ -72,6 +72,9 @@ class SscnnNetImpl : public torch::nn::Module {
   // [B, 3, H, W] image), for the sparse-vs-dense benchmark.
   SscnnOutput forwardDense(const torch::Tensor& input);
   const ArchSpec& arch() const { return arch_; }
+  // ArchSpec::value_saturation (>= 0): a law of the site weights, no weight
+  // depends on it (train/value_saturation_choice picks it on held-out images).
+  void setValueSaturation(double saturation) { arch_.value_saturation = saturation; }
   // Physics prior at initialisation: the centroid starts as the plain centre of
   // the active sites and maps linearly to the angles with these slopes
   // (normalized units), so training starts at a pinhole-model estimate.

@@ -39,9 +39,10 @@ struct TrainOptions {
   // instead of fresh ones; it must suit the sensor and, if given, `arch`.
   std::string init_model;
   // Site weights of the centroid branch: "learned", "value" or "intensity" (ArchSpec::
-  // centroid_weighting; empty: the init model's, else "value" with the geometric head, "learned" with the others).
+  // centroid_weighting; empty: the init model's, else "intensity" with the geometric head, "learned" with the others).
   std::string centroid_weighting;
-  // ArchSpec::value_saturation (>= 0); negative: the init model's, else 0.
+  // ArchSpec::value_saturation (>= 0); negative: the init model's, else chosen
+  // on the validation images for the geometric head (train/value_saturation_choice), 0 for the others.
   double value_saturation = -1.0;
   // Angle corrections from the pooled features: "on" or "off" (ArchSpec::
   // feature_corrections; empty: the init model's, else "on").
@@ -107,6 +108,10 @@ struct TrainProgress {
 struct FreshModelDesign {
   ArchSpec arch;
   HeadOptions head;
+  bool geometric_head = false;
+  // TrainOptions::value_saturation was not given and the head is geometric:
+  // the trainer chooses it when it writes the model (arch holds 0 meanwhile).
+  bool choose_value_saturation = false;
 };
 FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& options);
 
@@ -142,8 +147,11 @@ class Trainer {
   TrainResult run(const std::function<void(const TrainProgress&)>& on_progress, const std::atomic<bool>& stop);
 
   // The best validated (else the latest) weights as a model file (atomic),
-  // with training summary and validation metrics in its metadata.
-  void saveModel(const std::string& path, const std::string& data_description) const;
+  // with training summary and validation metrics in its metadata; σ's level,
+  // and where the trainer chooses it the value saturation with its angle
+  // correction, fitted on the validation images. Returns a line saying what
+  // that choice found ("" without one).
+  std::string saveModel(const std::string& path, const std::string& data_description) const;
 
   // Validation figures of the current weights (the val_* fields), without
   // touching the best-model bookkeeping.
