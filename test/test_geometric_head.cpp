@@ -503,7 +503,7 @@ TEST(GeometricHead, ModelKeepsItsGeometryAsNamedValuesAndRoundTrips) {
   Model m = createModel(f.config, "resnet10_w16", 3);
   ASSERT_TRUE(m.meta.arch.geometric_head);
   EXPECT_EQ(m.meta.arch.geometric_apertures, 5);
-  EXPECT_EQ(m.meta.arch.centroid_weighting, CentroidWeighting::kLearned);  // as asked; dss train defaults to value
+  EXPECT_EQ(m.meta.arch.centroid_weighting, CentroidWeighting::kLearned);  // as asked; dss train defaults to intensity
   // The nominal design, by name: the height to the mask's mid-plane.
   const auto buffers = m.net->named_buffers();
   ASSERT_TRUE(buffers.contains("geometry.height_um"));

@@ -68,7 +68,7 @@ TrainingSet render(const SensorInstance& instance, const InputSpec& spec, int co
 
 Model untrainedModel(const SensorConfig& design) {
   ArchSpec arch = archPreset("resnet10_w16", design.numSubFovClasses());
-  arch.centroid_weighting = CentroidWeighting::kValue;  // dss train's default for the geometric head
+  arch.centroid_weighting = CentroidWeighting::kValue;  // the family models' (their recipes)
   HeadOptions head;
   head.head = "geometric";
   Model model = createModel(design, arch, 1, head);
