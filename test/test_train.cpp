@@ -64,6 +64,18 @@ TrainOptions tinyOptions() {
   return o;
 }
 
+// Three apertures of 60 um drawn with `seed` on thesis_sa's detector, 2.5 mm high.
+SensorConfig drawnThreeApertureMask(std::uint64_t seed) {
+  RandomMaskOptions mask;
+  mask.apertures = 3;
+  mask.diameter_um = 60.0;
+  mask.min_whole_spots = 1;
+  return drawRandomMask(loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml",
+                                         {"optics.psf_node_step_deg=3", "mask.height_mm=2.5"}),
+                        mask, seed)
+      .config;
+}
+
 std::string tempPath(const std::string& name) {
   return (::testing::TempDir().empty() ? "/tmp/" : ::testing::TempDir()) + "dss_train_" + name;
 }
@@ -125,15 +137,7 @@ TEST(Train, GeometricHeadOnADrawnMaskEndsBelowItsUntrainedError) {
   // unit whose mask sits 1 % higher than the design the model starts from:
   // the untrained head solves through the design's geometry, and training
   // must learn what it leaves (about 0.03 deg at the edge of the field).
-  RandomMaskOptions mask;
-  mask.apertures = 3;
-  mask.diameter_um = 60.0;
-  mask.min_whole_spots = 1;
-  const SensorConfig design =
-      drawRandomMask(loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml",
-                                      {"optics.psf_node_step_deg=3", "mask.height_mm=2.5"}),
-                     mask, 1)
-          .config;
+  const SensorConfig design = drawnThreeApertureMask(1);
   SensorConfig unit = design;
   unit.mask.height_mm = 2.525;
   const TrainingSet all = simulate(unit, 400, 29);
@@ -209,15 +213,7 @@ TEST(Train, TrainingSetSmallerThanABatchTrains) {
 // gets the value saturation whose held-out angle correction reads the
 // validation images best, with that correction; a given one is kept.
 TEST(Train, GeometricHeadChoosesItsValueSaturationOnHeldOutImages) {
-  RandomMaskOptions mask;
-  mask.apertures = 3;
-  mask.diameter_um = 60.0;
-  mask.min_whole_spots = 1;
-  const SensorConfig design =
-      drawRandomMask(loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml",
-                                      {"optics.psf_node_step_deg=3", "mask.height_mm=2.5"}),
-                     mask, 2)
-          .config;
+  const SensorConfig design = drawnThreeApertureMask(2);
   const TrainingSet all = simulate(design, 200, 31);
   TrainingSet train{all.spec()}, validation{all.spec()};
   all.split(0.5, 1, train, validation);

@@ -23,7 +23,8 @@ namespace dss {
 namespace {
 
 // The richest angle correction the trainer fits on its validation images
-// (the degree is cross-validated; drawn masks A to G chose 1).
+// (the degree is cross-validated: on the drawn masks A to I, none after two
+// epochs of training, degree 1 on the heads as created).
 constexpr int kHeldOutCorrectionMaxDegree = 8;
 
 std::string formatNumber(double x) {
@@ -133,7 +134,7 @@ FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& opti
   // Site weights: the geometric head reads each spot's intensity-weighted
   // centroid (the baseline's; its search anchors on the brightest site). A
   // learned factor on them read drawn mask G 9 % worse than the baseline, the
-  // plain intensity level with it (docs/sscnn.md#site-weights). The other
+  // plain intensity level with it (docs/sscnn.md#site-weights-and-value-saturation). The other
   // heads start from equal weights and learn them.
   d.geometric_head = metadataFor(sensor, d.arch, d.head).arch.geometric_head;
   if (options.centroid_weighting.empty()) options.centroid_weighting = d.geometric_head ? "intensity" : "learned";

@@ -2,8 +2,8 @@
 // in its spots' centroids), chosen per sensor on held-out images. Which S
 // reads a sensor's spots with the least noise depends on the spots (their
 // size, the threshold, the readout): trained with S = 1, drawn mask F went
-// from 1.54 to 1.33 x the readout bound, while on mask G S = 0 read 6 % better
-// (docs/sscnn.md#value-saturation). No weight depends on S, so each candidate
+// from 1.54 to 1.34 x the readout bound, while on mask G S = 0 read about 5 %
+// better (docs/sscnn.md#site-weights-and-value-saturation). No weight depends on S, so each candidate
 // is scored on the same network: its held-out angle correction refitted
 // (train/bias_calibration), the cross-validated RMS compared. Torch-free header.
 #pragma once
