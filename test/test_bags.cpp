@@ -285,7 +285,23 @@ TEST(CalibrateUnit, ShippedFamilyModelCalibratesADrawnUnit) {
   EXPECT_GE(jsonNumber(line, "valid_rate"), 0.95) << line;
   EXPECT_LT(jsonNumber(line, "alpha_mean_deg"), 1.3 * 0.000516) << line;
   EXPECT_LT(jsonNumber(line, "beta_mean_deg"), 1.3 * 0.000526) << line;
-  for (const auto& f : {lab, test, unit, csv}) std::remove(f.c_str());
+
+  // The unit's mask then rises 20 um, which moves every spot alike. Replayed
+  // with references, as calibration_node runs: before the first refit its
+  // estimates, read with the calibrated sigma, are widened once ten
+  // references disagree with them.
+  const std::string drifted = tmp("unit_drifted.bag"), replay = tmp("replay.csv"), recalibrated = tmp("recal.dssmodel");
+  ASSERT_EQ(run(draw + " --set mask.height_mm=5.02 --count 60 --offset 200000 --out " + drifted).code, 0);
+  r = run("recalibrate --model " + unit + " --data " + drifted + " --min-pairs 40 --refit-every 10 --out " +
+          recalibrated + " --csv " + replay);
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::string replayed = lastLine(r.output, "{\"command\"");
+  std::printf("drifted unit replayed: %s\n", replayed.c_str());
+  EXPECT_GE(jsonNumber(replayed, "refits"), 1.0) << replayed;
+  EXPECT_LT(jsonNumber(replayed, "within_3sigma_before_first_refit"), 0.2) << replayed;
+  EXPECT_GT(jsonNumber(replayed, "within_3sigma_widened_before_first_refit"), 0.7) << replayed;
+  EXPECT_EQ(csvRows(replay).size(), 60u);
+  for (const auto& f : {lab, test, unit, csv, drifted, replay, recalibrated}) std::remove(f.c_str());
 }
 
 // calibrate-sigma with --sigma keep --spot-mismatch keep (how a family recipe's

@@ -2,9 +2,10 @@
 // geometric-head model of a drawn 5-aperture mask runs in calibration_node
 // (in this process, over the real master); the unit's mask has since risen
 // 20 um and moved 5 um. Images of it arrive with reference sun vectors (one
-// in twenty grossly wrong); the node's error must fall once the refits
-// start, it publishes the refitted geometry, and ~save_unit_model writes a
-// unit model that loads.
+// in twenty grossly wrong); before the first refit the node must widen the
+// sigma of its estimates to hold their error once the references show the
+// drift, its error must fall once the refits start, it publishes the
+// refitted geometry, and ~save_unit_model writes a unit model that loads.
 #include <digital_sun_sensor/SunAngles.h>
 #include <digital_sun_sensor/UnitGeometry.h>
 #include <geometry_msgs/Vector3Stamped.h>
@@ -151,16 +152,29 @@ TEST(CalibrationNode, RecalibratesADriftedUnitFromReferences) {
   }
   std::lock_guard<std::mutex> lock(mutex);
   ASSERT_EQ(answers.size(), static_cast<std::size_t>(kImages));
-  // Mean error of the first 20 answers (before any refit) and of the last 40.
+  // Mean error of the first 20 answers (before any refit) and of the last
+  // 40; within 3 sigma: the first 8 answers (too few pairs to judge: their
+  // own sigma) and answers 12-27 (the references show the drift; no refit
+  // before 30 pairs).
   double early = 0.0, late = 0.0;
-  int index = 0, late_valid = 0;
+  int index = 0, late_valid = 0, own_held = 0, own_valid = 0, widened_held = 0, widened_valid = 0;
   for (const auto& [stamp, a] : answers) {
     const auto& t = truth.at(stamp);
     const double error = 0.5 * (std::abs(a->alpha - t[0]) + std::abs(a->beta - t[1]));
+    const bool held = std::abs(a->alpha - t[0]) <= 3.0 * std::sqrt(a->covariance[0]) &&
+                      std::abs(a->beta - t[1]) <= 3.0 * std::sqrt(a->covariance[3]);
     if (index < 20) early += radToDeg(error) / 20.0;
+    if (index < 8 && a->valid) own_held += held, ++own_valid;
+    if (index >= 12 && index < 28 && a->valid) widened_held += held, ++widened_valid;
     if (index >= kImages - 40 && a->valid) late += radToDeg(error), ++late_valid;
     ++index;
   }
+  std::printf("within 3 sigma: %d of %d with their own sigma, %d of %d once the references judge\n", own_held,
+              own_valid, widened_held, widened_valid);
+  ASSERT_GT(own_valid, 4);
+  ASSERT_GT(widened_valid, 12);
+  EXPECT_LT(own_held, own_valid / 2);
+  EXPECT_GE(widened_held, widened_valid - 1);
   ASSERT_GT(late_valid, 35);
   late /= late_valid;
   std::printf("in-flight recalibration: mean error %.5f deg before the refits, %.5f deg in the last 40 images\n", early,

@@ -225,6 +225,7 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
       } catch (const std::exception& e) {
         ROS_ERROR_THROTTLE(5.0, "calibration_node: recalibration failed: %s", e.what());
       }
+      for (std::size_t i : where) recalibration_->widen(estimates[i]);
     }
   }
   for (std::size_t i = 0; i < batch.size(); ++i) {

@@ -37,6 +37,20 @@ RecalibrationOptions optionsFrom(const ros::NodeHandle& pnh) {
   return o;
 }
 
+ConsistencyOptions consistencyFrom(const ros::NodeHandle& pnh) {
+  ConsistencyOptions o;
+  o.window = countParam(pnh, "recalibration/consistency_window", o.window);
+  o.min_pairs = countParam(pnh, "recalibration/consistency_min_pairs", o.min_pairs);
+  o.reference_sigma_deg = pnh.param("recalibration/reference_sigma_deg", o.reference_sigma_deg);
+  o.max_normalized = pnh.param("recalibration/consistency_max_normalized", o.max_normalized);
+  try {
+    o.validate();
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(std::string("~recalibration/: ") + e.what());
+  }
+  return o;
+}
+
 }  // namespace
 
 InFlightRecalibration::InFlightRecalibration(ros::NodeHandle nh, ros::NodeHandle pnh, SscnnEstimator& estimator,
@@ -45,6 +59,8 @@ InFlightRecalibration::InFlightRecalibration(ros::NodeHandle nh, ros::NodeHandle
       estimator_mutex_(estimator_mutex),
       model_path_(std::move(model_path)),
       recalibrator_(optionsFrom(pnh)),
+      consistency_(consistencyFrom(pnh)),
+      judged_(consistency_),
       tf_listener_(tf_buffer_) {
   if (!estimator_.hasGeometry())
     throw std::runtime_error("~recalibration/enabled: the model " + model_path_ +
@@ -118,6 +134,10 @@ void InFlightRecalibration::offer(const std::vector<cv::Mat>& images, const std:
     estimated.push_back(&e);
   }
   if (paired.empty()) return;
+  // Every pair counts for consistency, also those the refit refuses as too
+  // far off: a drifted unit's are what it must see.
+  for (std::size_t k = 0; k < estimated.size(); ++k) consistency_.add(*estimated[k], references[k]);
+  judged_ = consistency_;
   const std::vector<UnitImage> reads = estimator_.readUnit(paired, references);
   for (std::size_t k = 0; k < reads.size() && k < estimated.size(); ++k)
     recalibrator_.add(reads[k], estimated[k]->alpha_rad, estimated[k]->beta_rad);
@@ -125,6 +145,7 @@ void InFlightRecalibration::offer(const std::vector<cv::Mat>& images, const std:
   if (recalibrator_.due()) {
     try {
       const UnitCalibrationReport r = estimator_.recalibrate(recalibrator_);
+      consistency_.reset();  // the earlier residuals were the old geometry's
       auto msg = boost::make_shared<digital_sun_sensor::UnitGeometry>();
       msg->header.stamp = headers.back().stamp;
       msg->header.frame_id = headers.back().frame_id;
@@ -158,6 +179,9 @@ void InFlightRecalibration::offer(const std::vector<cv::Mat>& images, const std:
   refits_ = recalibrator_.refits();
   spread_deg_ = recalibrator_.spreadDeg();
   if (!summary.empty()) last_refit_ = summary;
+  consistency_pairs_ = judged_.pairs();
+  consistency_normalized_ = judged_.normalizedRms();
+  widened_by_deg_ = {radToDeg(judged_.extraSigmaRad()[0]), radToDeg(judged_.extraSigmaRad()[1])};
 }
 
 bool InFlightRecalibration::onSave(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& response) {
@@ -198,6 +222,15 @@ void InFlightRecalibration::diagnose(diagnostic_updater::DiagnosticStatusWrapper
   stat.add("recalibration refits", refits_);
   stat.add("recalibration failed refits", refit_failures_);
   stat.add("recalibration last refit", last_refit_.empty() ? "none" : last_refit_);
+  stat.add("reference consistency pairs", consistency_pairs_);
+  stat.addf("reference residual / sigma (robust RMS)", "%.2f / %.2f", consistency_normalized_[0],
+            consistency_normalized_[1]);
+  stat.addf("sigma widened by [deg]", "%.6f / %.6f", widened_by_deg_[0], widened_by_deg_[1]);
+  if (widened_by_deg_[0] > 0.0 || widened_by_deg_[1] > 0.0)
+    stat.mergeSummaryf(diagnostic_msgs::DiagnosticStatus::WARN,
+                       "estimates disagree with the reference (%.1f / %.1f sigma): sigma widened by %.4f / %.4f deg "
+                       "until the unit's geometry is refitted",
+                       consistency_normalized_[0], consistency_normalized_[1], widened_by_deg_[0], widened_by_deg_[1]);
 }
 
 }  // namespace dss

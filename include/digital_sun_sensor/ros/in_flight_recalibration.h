@@ -4,7 +4,10 @@
 // stamp, the geometric-head model's geometry is refitted from a bounded
 // window of pairs (model/unit_recalibration), the result is published on
 // unit_geometry, and ~save_unit_model writes the recalibrated unit model
-// atomically.
+// atomically. The same pairs tell whether the estimates still agree with the
+// references within their sigma (estimate/reference_consistency): where not
+// (a unit that drifted as a whole), widen() widens each estimate's sigma
+// until a refit brings them back.
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
@@ -22,6 +25,7 @@
 #include <vector>
 
 #include "digital_sun_sensor/common/sun_estimate.h"
+#include "digital_sun_sensor/estimate/reference_consistency.h"
 #include "digital_sun_sensor/model/unit_recalibration.h"
 
 namespace dss {
@@ -40,6 +44,10 @@ class InFlightRecalibration {
   // images with references of their stamp and refits when due.
   void offer(const std::vector<cv::Mat>& images, const std::vector<std_msgs::Header>& headers,
              const std::vector<SunEstimate>& estimates);
+  // Called with estimator_mutex held, after offer: widens an estimate's
+  // sigma by what the references show where they disagree with it (as
+  // judged with the batch's pairs, before a refit they may have started).
+  void widen(SunEstimate& estimate) const { judged_.widen(estimate); }
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
  private:
@@ -54,6 +62,7 @@ class InFlightRecalibration {
   std::string model_path_, output_path_;
   double max_stamp_difference_s_ = 0.02;
   UnitRecalibrator recalibrator_;
+  ReferenceConsistency consistency_, judged_;
   ros::Subscriber reference_sub_;
   ros::Publisher geometry_pub_;
   ros::ServiceServer save_service_;
@@ -68,6 +77,8 @@ class InFlightRecalibration {
   std::size_t pairs_ = 0, refused_ = 0, refits_ = 0;
   double spread_deg_ = 0.0;
   std::string last_refit_;
+  std::size_t consistency_pairs_ = 0;
+  std::array<double, 2> consistency_normalized_{}, widened_by_deg_{};
 };
 
 }  // namespace dss
