@@ -25,9 +25,15 @@ TEST(PatternHead, MergedSpotsGetItAndItAnswersAsThePatternEstimator) {
   EXPECT_FALSE(model.meta.arch.geometric_head);
   EXPECT_EQ(model.meta.input.max_sites, config.detector.width_px * config.detector.height_px);
   EXPECT_FALSE(model.net->backboneNeeded());
-  // The other shipped masks keep their heads.
-  for (const std::string name : {"thesis_sa", "thesis_ma", "wide_ma"})
-    EXPECT_FALSE(createModel(shipped(name), arch, 3).meta.arch.pattern_head) << name;
+  // The other shipped masks keep their heads, which take no coarse direction.
+  for (const std::string name : {"thesis_sa", "thesis_ma", "wide_ma"}) {
+    const Model other = createModel(shipped(name), arch, 3);
+    EXPECT_FALSE(other.meta.arch.pattern_head) << name;
+    const SensorConfig sensor = shipped(name);
+    const cv::Mat dark = cv::Mat::zeros(sensor.detector.height_px, sensor.detector.width_px, CV_8U);
+    const CoarseDirections coarse = {CoarseDirection{0.0, 0.0, 0.01}};
+    EXPECT_THROW(other.predict({dark}, &coarse), std::invalid_argument) << name;
+  }
 
   DatasetSpec spec;
   spec.count = 4;

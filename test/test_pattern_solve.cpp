@@ -146,6 +146,37 @@ TEST_F(PatternSolveTest, AliasChoiceIsDeclinedWhereLightTheDesignLacksCouldTipIt
   EXPECT_TRUE(estimator.estimateOne(clean).valid);
 }
 
+// Where the pattern's two places are mirror images of each other (alpha
+// about +-2.87 deg, 5.74 deg apart), the design's image cannot tell them
+// apart through the detector's noise and the image alone is declined; a coarse direction (a coarse sun
+// sensor) nearer one place by 3 of its sigma chooses that place, one about
+// midway leaves it declined.
+TEST_F(PatternSolveTest, MirrorImageAliasIsChosenByACoarseDirection) {
+  PatternEstimator estimator(*config_, kNoSigmaImages);
+  // With the detector's noise (every seed of 1-12 is declined alone; with
+  // seed 2 the solve lands at the alias first).
+  const cv::Mat image = renderer_->render(sunVectorFromAngles(degToRad(2.87), degToRad(0.1)), 2, nullptr);
+  const SunEstimate alone = estimator.estimate({image}).at(0);
+  EXPECT_FALSE(alone.valid);
+  EXPECT_EQ(status::statusCode(alone.status), status::kAmbiguousAperture) << alone.status;
+  const auto withCoarse = [&](double alpha_deg) {
+    return estimator
+        .estimateWithCoarseDirections({image}, {CoarseDirection{degToRad(alpha_deg), degToRad(0.5), degToRad(1.0)}})
+        .at(0);
+  };
+  const SunEstimate near_truth = withCoarse(4.0);
+  ASSERT_TRUE(near_truth.valid) << near_truth.status;
+  EXPECT_NEAR(radToDeg(near_truth.alpha_rad), 2.87, 0.002);
+  EXPECT_NEAR(radToDeg(near_truth.beta_rad), 0.1, 0.002);
+  const SunEstimate near_alias = withCoarse(-2.0);  // trusted, and wrong
+  ASSERT_TRUE(near_alias.valid) << near_alias.status;
+  EXPECT_NEAR(radToDeg(near_alias.alpha_rad), 2.87 - 5.74, 0.05);
+  const SunEstimate midway = withCoarse(0.3);
+  EXPECT_FALSE(midway.valid);
+  EXPECT_EQ(status::statusCode(midway.status), status::kAmbiguousAperture) << midway.status;
+  EXPECT_THROW(estimator.estimateWithCoarseDirections({image, image}, {std::nullopt}), std::invalid_argument);
+}
+
 // Where no alias competes, a ghost still biases the solve beyond its
 // sigma: the answer is declined model_mismatch when the image holds light
 // the design's image at the answer does not; the same unit without the

@@ -148,7 +148,19 @@ std::vector<SunEstimate> PatternEstimator::estimateWithSubFovHints(const std::ve
   return out;
 }
 
-SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window) const {
+std::vector<SunEstimate> PatternEstimator::estimateWithCoarseDirections(const std::vector<cv::Mat>& images,
+                                                                        const CoarseDirections& coarse) {
+  if (coarse.size() != images.size())
+    throw std::invalid_argument("pattern estimator: " + std::to_string(coarse.size()) + " coarse directions for " +
+                                std::to_string(images.size()) + " images");
+  std::vector<SunEstimate> out;
+  out.reserve(images.size());
+  for (std::size_t k = 0; k < images.size(); ++k) out.push_back(estimateOne(images[k], {}, coarse[k]));
+  return out;
+}
+
+SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window,
+                                          const std::optional<CoarseDirection>& coarse) const {
   SunEstimate est;
   est.status = input_.badImageStatus(image);
   if (!est.status.empty()) return est;
@@ -168,9 +180,19 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   std::optional<AliasEvidence> evidence;  // its unexplained_z is the answer's place's
   if (ambiguous) {
     evidence = aliasEvidence(image, solution->angles_rad, solution->alternative_rad);
-    if (evidence->decides() && evidence->z > 0.0) {
+    // Otherwise a coarse direction that lies clearly nearer one place: at the
+    // places the design's image cannot tell apart (mirror images of each
+    // other, 1.15 % of thesis_ca's field) it is all there is.
+    bool other_nearer = false, coarse_decides = false;
+    if (!evidence->decides() && coarse) {
+      const Eigen::Vector2d c(coarse->alpha_rad, coarse->beta_rad);
+      const double here = (solution->angles_rad - c).norm(), there = (solution->alternative_rad - c).norm();
+      coarse_decides = std::abs(there - here) >= kCoarseDecisionSigmas * coarse->sigma_rad;
+      other_nearer = there < here;
+    }
+    if ((evidence->decides() && evidence->z > 0.0) || (coarse_decides && !other_nearer)) {
       ambiguous = false;
-    } else if (evidence->decides()) {
+    } else if (evidence->decides() || coarse_decides) {
       const Eigen::Vector2d other = solution->alternative_rad;
       solution = solver_.refine(image, other);
       if (!solution) {

@@ -5,6 +5,8 @@
 #include <thread>
 
 #include "commands.h"
+#include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/eval/crlb.h"
@@ -55,6 +57,8 @@ void computeBounds(std::vector<EvalRecord>& records, const SensorConfig& config,
   progress.finish();
 }
 
+constexpr std::uint64_t kCoarseSeed = 0xC0A55E;
+
 }  // namespace
 
 int runEval(int argc, char** argv) {
@@ -84,6 +88,11 @@ int runEval(int argc, char** argv) {
                  "a coarse sun sensor's quadrant): the pattern estimator, on a mask whose pattern repeats within "
                  "the field",
                  "", false, false},
+                {"coarse-sigma-deg", "D",
+                 "give the estimator a coarse sun direction per image, as a coarse sun sensor of this 1-sigma error "
+                 "per axis would (the truth plus seeded normal noise; calibration_node's ~coarse_sun): chooses where "
+                 "a repeating pattern fits two places (0: none)",
+                 "0", false, false},
                 {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images, those answered (0: skip)", "200",
                  false, false},
                 {"batch", "B", "images per estimator call", "16", false, false},
@@ -121,13 +130,21 @@ int runEval(int argc, char** argv) {
   std::vector<cv::Mat> batch;
   std::vector<int> hints;
   const bool hinted = args.has("subfov-hint");
+  const double coarse_sigma_rad = degToRad(args.getDouble("coarse-sigma-deg"));
+  if (!(coarse_sigma_rad >= 0.0)) throw UsageError("dss eval: --coarse-sigma-deg must be >= 0");
+  if (hinted && coarse_sigma_rad > 0.0)
+    throw UsageError("dss eval: --subfov-hint and --coarse-sigma-deg exclude each other");
+  CoarseDirections coarse;
   double estimator_ms = 0.0;
   auto flush = [&] {
     if (batch.empty()) return;
     const auto t0 = std::chrono::steady_clock::now();
-    const std::vector<SunEstimate> estimates =
-        hinted ? estimator->estimateWithSubFovHints(batch, hints) : estimator->estimate(batch);
+    const std::vector<SunEstimate> estimates = hinted ? estimator->estimateWithSubFovHints(batch, hints)
+                                               : coarse_sigma_rad > 0.0
+                                                   ? estimator->estimateWithCoarseDirections(batch, coarse)
+                                                   : estimator->estimate(batch);
     hints.clear();
+    coarse.clear();
     estimator_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     for (std::size_t k = 0; k < estimates.size(); ++k)
       records[records.size() - batch.size() + k].estimate = estimates[k];
@@ -146,6 +163,11 @@ int runEval(int argc, char** argv) {
     records.push_back(r);
     batch.push_back(item.image);
     hints.push_back(item.truth.subfov_class);
+    if (coarse_sigma_rad > 0.0) {
+      Rng rng(deriveSeed(kCoarseSeed, item.index));  // the same reading of an image in every run
+      coarse.push_back(CoarseDirection{item.truth.alpha + coarse_sigma_rad * rng.normal(),
+                                       item.truth.beta + coarse_sigma_rad * rng.normal(), coarse_sigma_rad});
+    }
     if (batch.size() >= batch_size) flush();
     progress.update(item.index + 1);
     return max_images == 0 || item.index + 1 < max_images;

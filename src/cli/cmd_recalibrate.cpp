@@ -176,11 +176,6 @@ int runRecalibrate(int argc, char** argv) {
       estimated.push_back(&estimates[k]);
     }
     for (std::size_t k = 0; k < estimated.size(); ++k) consistency.add(*estimated[k], references[k]);
-    if (!paired.empty()) {
-      const std::vector<UnitImage> reads = estimator.readUnit(paired, references);
-      for (std::size_t k = 0; k < reads.size() && k < estimated.size(); ++k)
-        recalibrator.add(reads[k], estimated[k]->alpha_rad, estimated[k]->beta_rad);
-    }
     for (std::size_t k = 0; k < batch.size(); ++k) {
       ReplayRow& row = rows[first + k];
       if (widen) consistency.widen(row.published);
@@ -188,12 +183,18 @@ int runRecalibrate(int argc, char** argv) {
       row.refits = recalibrator.refits();
     }
     batch.clear();
-    if (!recalibrator.due()) return;
-    try {
-      estimator.recalibrate(recalibrator);
-      consistency.reset();
-    } catch (const std::invalid_argument& e) {
-      if (failures++ == 0) std::cerr << "refit failed: " << e.what() << "\n";
+    if (paired.empty()) return;
+    // Due is judged pair by pair, as in the node.
+    const std::vector<UnitImage> reads = estimator.readUnit(paired, references);
+    for (std::size_t k = 0; k < reads.size() && k < estimated.size(); ++k) {
+      recalibrator.add(reads[k], estimated[k]->alpha_rad, estimated[k]->beta_rad);
+      if (!recalibrator.due()) continue;
+      try {
+        estimator.recalibrate(recalibrator);
+        consistency.reset();
+      } catch (const std::invalid_argument& e) {
+        if (failures++ == 0) std::cerr << "refit failed: " << e.what() << "\n";
+      }
     }
   };
   Progress progress("recalibrate",

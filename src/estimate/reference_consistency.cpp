@@ -25,11 +25,12 @@ double robustRms(std::vector<double>& squares) {
 }  // namespace
 
 void ConsistencyOptions::validate() const {
-  auto fail = [](const std::string& what) { throw std::invalid_argument("reference consistency: " + what); };
-  if (min_pairs < 3) fail("min_pairs must be at least 3");
-  if (window < min_pairs) fail("the window must hold at least min_pairs pairs");
+  // Named as calibration_node's ~recalibration/ parameters.
+  auto fail = [](const std::string& what) { throw std::invalid_argument(what); };
+  if (min_pairs < 3) fail("consistency_min_pairs must be at least 3");
+  if (window < min_pairs) fail("consistency_window must be at least consistency_min_pairs");
   if (!(reference_sigma_deg >= 0.0)) fail("reference_sigma_deg must be >= 0");
-  if (!(max_normalized > 0.0)) fail("max_normalized must be positive");
+  if (!(max_normalized > 0.0)) fail("consistency_max_normalized must be positive");
 }
 
 ReferenceConsistency::ReferenceConsistency(ConsistencyOptions options) : options_(options) { options_.validate(); }

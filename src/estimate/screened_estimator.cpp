@@ -128,7 +128,9 @@ cv::Mat ScreenedEstimator::screenedImage(const cv::Mat& image) const {
 }
 
 std::vector<SunEstimate> ScreenedEstimator::estimate(const std::vector<cv::Mat>& images) {
-  return screenAndEstimate(images, nullptr);
+  return screenAndEstimate(images, [&](const std::vector<cv::Mat>& passed, const std::vector<std::size_t>&) {
+    return inner_->estimate(passed);
+  });
 }
 
 std::vector<SunEstimate> ScreenedEstimator::estimateWithSubFovHints(const std::vector<cv::Mat>& images,
@@ -136,11 +138,26 @@ std::vector<SunEstimate> ScreenedEstimator::estimateWithSubFovHints(const std::v
   if (subfov_classes.size() != images.size())
     throw std::invalid_argument(std::to_string(subfov_classes.size()) + " sub-FOV hints for " +
                                 std::to_string(images.size()) + " images");
-  return screenAndEstimate(images, &subfov_classes);
+  return screenAndEstimate(images, [&](const std::vector<cv::Mat>& passed, const std::vector<std::size_t>& where) {
+    std::vector<int> passed_hints;
+    for (std::size_t i : where) passed_hints.push_back(subfov_classes[i]);
+    return inner_->estimateWithSubFovHints(passed, passed_hints);
+  });
 }
 
-std::vector<SunEstimate> ScreenedEstimator::screenAndEstimate(const std::vector<cv::Mat>& images,
-                                                              const std::vector<int>* hints) {
+std::vector<SunEstimate> ScreenedEstimator::estimateWithCoarseDirections(const std::vector<cv::Mat>& images,
+                                                                         const CoarseDirections& coarse) {
+  if (coarse.size() != images.size())
+    throw std::invalid_argument(std::to_string(coarse.size()) + " coarse directions for " +
+                                std::to_string(images.size()) + " images");
+  return screenAndEstimate(images, [&](const std::vector<cv::Mat>& passed, const std::vector<std::size_t>& where) {
+    CoarseDirections passed_coarse;
+    for (std::size_t i : where) passed_coarse.push_back(coarse[i]);
+    return inner_->estimateWithCoarseDirections(passed, passed_coarse);
+  });
+}
+
+std::vector<SunEstimate> ScreenedEstimator::screenAndEstimate(const std::vector<cv::Mat>& images, const Run& run) {
   std::vector<SunEstimate> out(images.size());
   std::vector<cv::Mat> passed;
   std::vector<std::size_t> where;
@@ -161,14 +178,7 @@ std::vector<SunEstimate> ScreenedEstimator::screenAndEstimate(const std::vector<
     }
   }
   if (passed.empty()) return out;
-  std::vector<SunEstimate> estimates;
-  if (hints) {
-    std::vector<int> passed_hints;
-    for (std::size_t i : where) passed_hints.push_back((*hints)[i]);
-    estimates = inner_->estimateWithSubFovHints(passed, passed_hints);
-  } else {
-    estimates = inner_->estimate(passed);
-  }
+  std::vector<SunEstimate> estimates = run(passed, where);
   for (std::size_t k = 0; k < estimates.size(); ++k) {
     screenEstimate(&estimates[k], inner_->sensor(), options_);
     out[where[k]] = std::move(estimates[k]);

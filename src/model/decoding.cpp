@@ -1,6 +1,8 @@
 // Network outputs to angles, variances and classes, and inference in passes.
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <stdexcept>
 
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
@@ -98,9 +100,10 @@ constexpr std::size_t kImageInputsPerPass = 16;
 constexpr std::size_t kSampleInputsPerPass = 64;
 
 // predict over `items` in passes of at most `inputs_per_pass` network inputs.
+// With `coarse` (one per item, no inference symmetry), the pattern head's coarse directions.
 template <typename Item, typename Encode>
 std::vector<Prediction> predictInPasses(const Model& model, const std::vector<Item>& items, std::size_t inputs_per_pass,
-                                        const Encode& encode) {
+                                        const Encode& encode, const CoarseDirections* coarse = nullptr) {
   torch::NoGradGuard no_grad;
   const std::size_t per_pass =
       std::max<std::size_t>(1, inputs_per_pass / symmetryTransforms(model.meta.inference_symmetry).size());
@@ -110,7 +113,18 @@ std::vector<Prediction> predictInPasses(const Model& model, const std::vector<It
     const std::vector<Item> pass(items.begin() + static_cast<std::ptrdiff_t>(first),
                                  items.begin() + static_cast<std::ptrdiff_t>(std::min(items.size(), first + per_pass)));
     const auto input = encode(pass);
-    const std::vector<Prediction> p = model.decode(model.net->forward(input), *input.sites);
+    torch::Tensor known;
+    if (coarse) {
+      const double s = model.meta.angle_scale_rad, none = std::numeric_limits<double>::quiet_NaN();
+      known = torch::full({static_cast<std::int64_t>(pass.size()), 3}, none, torch::kDouble);
+      for (std::size_t k = 0; k < pass.size(); ++k)
+        if (const auto& c = (*coarse)[first + k]) {
+          known[static_cast<std::int64_t>(k)][0] = c->alpha_rad / s;
+          known[static_cast<std::int64_t>(k)][1] = c->beta_rad / s;
+          known[static_cast<std::int64_t>(k)][2] = c->sigma_rad / s;
+        }
+    }
+    const std::vector<Prediction> p = model.decode(model.net->forward(input, {}, known), *input.sites);
     out.insert(out.end(), p.begin(), p.end());
   }
   return out;
@@ -118,11 +132,23 @@ std::vector<Prediction> predictInPasses(const Model& model, const std::vector<It
 
 }  // namespace
 
-std::vector<Prediction> Model::predict(const std::vector<cv::Mat>& images) const {
+std::vector<Prediction> Model::predict(const std::vector<cv::Mat>& images, const CoarseDirections* coarse) const {
   checkImages(images, meta.input);  // before the passes, so that errors name the caller's index
-  return predictInPasses(*this, images, kImageInputsPerPass, [&](const std::vector<cv::Mat>& pass) {
-    return encodeImages(pass, meta.input, torch::kFloat, meta.inference_symmetry);
-  });
+  if (coarse) {
+    if (!meta.arch.pattern_head)
+      throw std::invalid_argument("predict: only a pattern head takes coarse directions (its pattern repeats)");
+    if (symmetryTransforms(meta.inference_symmetry).size() != 1)
+      throw std::invalid_argument("predict: coarse directions need the inference symmetry 'none'");
+    if (coarse->size() != images.size())
+      throw std::invalid_argument("predict: " + std::to_string(coarse->size()) + " coarse directions for " +
+                                  std::to_string(images.size()) + " images");
+  }
+  return predictInPasses(
+      *this, images, kImageInputsPerPass,
+      [&](const std::vector<cv::Mat>& pass) {
+        return encodeImages(pass, meta.input, torch::kFloat, meta.inference_symmetry);
+      },
+      coarse);
 }
 
 std::vector<Prediction> Model::predictSamples(const std::vector<const SparseSample*>& samples) const {

@@ -2,6 +2,7 @@
 // the sensor design's pattern estimator, on the image its sites make.
 #include <cmath>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <stdexcept>
 
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
@@ -21,7 +22,7 @@ void SscnnNetImpl::warmUp(int threads) const {
   if (pattern_) pattern_->warmUp(threads);
 }
 
-SscnnOutput SscnnNetImpl::patternForward(const sparse::SparseTensor& input) {
+SscnnOutput SscnnNetImpl::patternForward(const sparse::SparseTensor& input, const torch::Tensor& coarse) {
   if (!pattern_) throw std::logic_error("pattern head: the sensor's pattern estimator was not made (initPattern)");
   const std::int64_t batch = input.sites->batchSize();
   const InputSpec& spec = pattern_input_;
@@ -53,7 +54,14 @@ SscnnOutput SscnnNetImpl::patternForward(const sparse::SparseTensor& input) {
   SscnnOutput out;
   out.declined.resize(static_cast<std::size_t>(batch));
   for (std::int64_t b = 0; b < batch; ++b) {
-    const SunEstimate e = pattern_->estimateOne(images[static_cast<std::size_t>(b)]);
+    std::optional<CoarseDirection> direction;
+    if (coarse.defined()) {
+      const auto row = coarse[b].to(torch::kDouble);
+      if (std::isfinite(row[2].item<double>()))
+        direction = CoarseDirection{row[0].item<double>() * scale, row[1].item<double>() * scale,
+                                    row[2].item<double>() * scale};
+    }
+    const SunEstimate e = pattern_->estimateOne(images[static_cast<std::size_t>(b)], {}, direction);
     c[b] = std::max(e.subfov_class, 0);
     if (!e.valid) {
       out.declined[static_cast<std::size_t>(b)] = e.status;

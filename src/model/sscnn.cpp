@@ -193,7 +193,7 @@ std::int64_t SscnnNetImpl::parameterCount() const {
 
 SscnnOutput SscnnNetImpl::forward(const SparseTensor& input, const torch::Tensor& known_classes,
                                   const torch::Tensor& known_angles) {
-  if (arch_.pattern_head) return patternForward(input);
+  if (arch_.pattern_head) return patternForward(input, known_angles);
   torch::Tensor pooled;
   if (skipsBackbone()) {
     pooled = torch::zeros({input.sites->batchSize(), pooled_width_}, input.features.options());

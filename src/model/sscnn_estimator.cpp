@@ -9,6 +9,7 @@
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/symmetry.h"
 
 namespace dss {
 
@@ -71,21 +72,39 @@ std::string SscnnEstimator::unitCalibration() const {
 }
 
 std::vector<SunEstimate> SscnnEstimator::estimate(const std::vector<cv::Mat>& images) {
+  return estimateWith(images, nullptr);
+}
+
+std::vector<SunEstimate> SscnnEstimator::estimateWithCoarseDirections(const std::vector<cv::Mat>& images,
+                                                                      const CoarseDirections& coarse) {
+  if (coarse.size() != images.size())
+    throw std::invalid_argument(std::to_string(coarse.size()) + " coarse directions for " +
+                                std::to_string(images.size()) + " images");
+  // A pattern head reads the image alone (no mirror images averaged).
+  const bool takes_coarse =
+      impl_->model.meta.arch.pattern_head && symmetryTransforms(impl_->model.meta.inference_symmetry).size() == 1;
+  return estimateWith(images, takes_coarse ? &coarse : nullptr);
+}
+
+std::vector<SunEstimate> SscnnEstimator::estimateWith(const std::vector<cv::Mat>& images,
+                                                      const CoarseDirections* coarse) {
   std::vector<SunEstimate> out(images.size());
   // Unusable images are answered individually; the rest run as one batch.
   std::vector<cv::Mat> usable;
   std::vector<std::size_t> where;
+  CoarseDirections usable_coarse;
   for (std::size_t i = 0; i < images.size(); ++i) {
     try {
       impl_->model.meta.input.checkImage(images[i]);
       usable.push_back(images[i]);
       where.push_back(i);
+      if (coarse) usable_coarse.push_back((*coarse)[i]);
     } catch (const std::invalid_argument& e) {
       out[i].status = status::withDetail(status::kBadImage, e.what());
     }
   }
   if (usable.empty()) return out;
-  const std::vector<Prediction> predictions = impl_->model.predict(usable);
+  const std::vector<Prediction> predictions = impl_->model.predict(usable, coarse ? &usable_coarse : nullptr);
   for (std::size_t k = 0; k < predictions.size(); ++k) {
     const Prediction& p = predictions[k];
     SunEstimate& e = out[where[k]];

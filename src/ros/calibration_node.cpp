@@ -13,6 +13,7 @@
 
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/common/statistics.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/estimate/estimator_factory.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
@@ -131,6 +132,21 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
                 sscnn ? "the model has no geometric head" : "no SSCNN model is in use");
   }
 
+  const std::string coarse_topic = pnh_.param<std::string>("coarse_sun/topic", "");
+  if (!coarse_topic.empty()) {
+    // A coarse sun sensor's direction chooses where a repeating pattern fits
+    // two places about equally (thesis_ca); other estimators ignore it.
+    const double sigma_deg = pnh_.param("coarse_sun/sigma_deg", 1.0);
+    if (!(sigma_deg > 0.0)) throw std::runtime_error("~coarse_sun/sigma_deg must be positive");
+    coarse_sigma_rad_ = degToRad(sigma_deg);
+    try {
+      coarse_sun_ = std::make_unique<SunDirectionInput>(
+          nh_, coarse_topic, pnh_.param("coarse_sun/max_stamp_difference_s", 0.05), "coarse sun direction");
+    } catch (const std::invalid_argument& e) {
+      throw std::runtime_error(std::string("~coarse_sun/max_stamp_difference_s: ") + e.what());
+    }
+  }
+
   angles_pub_ = nh_.advertise<SunAngles>("angles", 10);
   vector_pub_ = nh_.advertise<geometry_msgs::Vector3Stamped>("sun_vector", 10);
   // The subscriber queue is deep and its callback only enqueues, so that
@@ -203,7 +219,21 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
   } else if (!images.empty()) {
     std::lock_guard<std::mutex> lock(estimator_mutex_);
     try {
-      std::vector<SunEstimate> out = estimator_->estimate(images);
+      std::vector<SunEstimate> out;
+      if (coarse_sun_) {
+        CoarseDirections coarse;
+        for (std::size_t i : where) {
+          std_msgs::Header header = batch[i]->header;
+          if (header.frame_id.empty()) header.frame_id = default_frame_id_;
+          const auto angles = coarse_sun_->forImage(header);
+          coarse.push_back(
+              angles ? std::optional<CoarseDirection>(CoarseDirection{(*angles)[0], (*angles)[1], coarse_sigma_rad_})
+                     : std::nullopt);
+        }
+        out = estimator_->estimateWithCoarseDirections(images, coarse);
+      } else {
+        out = estimator_->estimate(images);
+      }
       for (std::size_t k = 0; k < out.size(); ++k) estimates[where[k]] = std::move(out[k]);
     } catch (const std::exception& e) {
       ROS_ERROR_THROTTLE(5.0, "calibration_node: estimator failed: %s", e.what());
@@ -366,6 +396,12 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     reasons << (reasons.tellp() ? ", " : "") << reason << ": " << count;
   stat.add("invalid reasons", reasons.str());
   stat.add("resident memory [MiB]", residentMemoryMiB());
+  if (coarse_sun_) {
+    const SunDirectionInput::Counts c = coarse_sun_->counts();
+    stat.add("coarse sun directions received", c.received);
+    stat.add("images with a coarse sun direction", c.paired);
+    stat.add("images without one", c.unpaired_images + c.unresolved_frames + c.behind_sensor);
+  }
   if (recalibration_) recalibration_->diagnose(stat);
 }
 

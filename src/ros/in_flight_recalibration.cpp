@@ -1,7 +1,6 @@
 #include "digital_sun_sensor/ros/in_flight_recalibration.h"
 
 #include <digital_sun_sensor/UnitGeometry.h>
-#include <tf2_geometry_msgs/tf2_geometry_msgs.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
@@ -13,8 +12,6 @@
 
 namespace dss {
 namespace {
-
-constexpr std::size_t kReferencesKept = 200;  // recent references waiting for their image
 
 std::size_t countParam(const ros::NodeHandle& pnh, const std::string& name, std::size_t fallback) {
   const int value = pnh.param(name, static_cast<int>(fallback));
@@ -46,7 +43,7 @@ ConsistencyOptions consistencyFrom(const ros::NodeHandle& pnh) {
   try {
     o.validate();
   } catch (const std::invalid_argument& e) {
-    throw std::runtime_error(std::string("~recalibration/: ") + e.what());
+    throw std::runtime_error(std::string("~recalibration/") + e.what());
   }
   return o;
 }
@@ -60,61 +57,18 @@ InFlightRecalibration::InFlightRecalibration(ros::NodeHandle nh, ros::NodeHandle
       model_path_(std::move(model_path)),
       recalibrator_(optionsFrom(pnh)),
       consistency_(consistencyFrom(pnh)),
-      judged_(consistency_),
-      tf_listener_(tf_buffer_) {
+      judged_(consistency_) {
   if (!estimator_.hasGeometry())
     throw std::runtime_error("~recalibration/enabled: the model " + model_path_ +
                              " has no geometric head, so no geometry to recalibrate");
-  max_stamp_difference_s_ = pnh.param("recalibration/max_stamp_difference_s", max_stamp_difference_s_);
-  if (!(max_stamp_difference_s_ >= 0.0)) throw std::runtime_error("~recalibration/max_stamp_difference_s must be >= 0");
+  const double max_stamp_difference_s = pnh.param("recalibration/max_stamp_difference_s", 0.02);
+  if (!(max_stamp_difference_s >= 0.0)) throw std::runtime_error("~recalibration/max_stamp_difference_s must be >= 0");
   output_path_ = pnh.param<std::string>("recalibration/output", "");
-  reference_sub_ = nh.subscribe(pnh.param<std::string>("recalibration/reference_topic", "reference_sun_vector"), 100,
-                                &InFlightRecalibration::onReference, this);
+  references_ = std::make_unique<SunDirectionInput>(
+      nh, pnh.param<std::string>("recalibration/reference_topic", "reference_sun_vector"), max_stamp_difference_s,
+      "reference");
   geometry_pub_ = nh.advertise<digital_sun_sensor::UnitGeometry>("unit_geometry", 1, true);
   save_service_ = pnh.advertiseService("save_unit_model", &InFlightRecalibration::onSave, this);
-}
-
-void InFlightRecalibration::onReference(const geometry_msgs::Vector3Stamped::ConstPtr& msg) {
-  {
-    std::lock_guard<std::mutex> lock(references_mutex_);
-    references_.push_back(msg);
-    if (references_.size() > kReferencesKept) references_.pop_front();
-  }
-  std::lock_guard<std::mutex> lock(stats_mutex_);
-  ++references_received_;
-}
-
-bool InFlightRecalibration::referenceFor(const std_msgs::Header& image, std::array<double, 2>& angles_rad) {
-  geometry_msgs::Vector3Stamped::ConstPtr best;
-  {
-    std::lock_guard<std::mutex> lock(references_mutex_);
-    double nearest = max_stamp_difference_s_;
-    for (const auto& r : references_) {
-      const double d = std::abs((r->header.stamp - image.stamp).toSec());
-      if (d <= nearest) nearest = d, best = r;
-    }
-  }
-  if (!best) {
-    std::lock_guard<std::mutex> lock(stats_mutex_);
-    ++unpaired_images_;
-    return false;
-  }
-  geometry_msgs::Vector3Stamped in_sensor = *best;
-  if (!best->header.frame_id.empty() && best->header.frame_id != image.frame_id) {
-    try {
-      in_sensor = tf_buffer_.transform(*best, image.frame_id, ros::Duration(0.0));
-    } catch (const tf2::TransformException& e) {
-      ROS_WARN_THROTTLE(5.0, "calibration_node: reference in frame '%s' not resolved to '%s': %s",
-                        best->header.frame_id.c_str(), image.frame_id.c_str(), e.what());
-      std::lock_guard<std::mutex> lock(stats_mutex_);
-      ++unresolved_frames_;
-      return false;
-    }
-  }
-  const auto& v = in_sensor.vector;
-  if (!(v.z > 0.0) || !std::isfinite(v.x) || !std::isfinite(v.y) || !std::isfinite(v.z)) return false;
-  angles_rad = {std::atan2(v.x, v.z), std::atan2(v.y, v.z)};
-  return true;
 }
 
 void InFlightRecalibration::offer(const std::vector<cv::Mat>& images, const std::vector<std_msgs::Header>& headers,
@@ -127,10 +81,10 @@ void InFlightRecalibration::offer(const std::vector<cv::Mat>& images, const std:
     // the refit is for.
     const SunEstimate& e = estimates[i];
     if (!e.valid && status::statusCode(e.status) != status::kModelMismatch) continue;
-    std::array<double, 2> angles{};
-    if (!referenceFor(headers[i], angles)) continue;
+    const std::optional<std::array<double, 2>> angles = references_->forImage(headers[i]);
+    if (!angles) continue;
     paired.push_back(images[i]);
-    references.push_back(angles);
+    references.push_back(*angles);
     estimated.push_back(&e);
   }
   if (paired.empty()) return;
@@ -139,10 +93,11 @@ void InFlightRecalibration::offer(const std::vector<cv::Mat>& images, const std:
   for (std::size_t k = 0; k < estimated.size(); ++k) consistency_.add(*estimated[k], references[k]);
   judged_ = consistency_;
   const std::vector<UnitImage> reads = estimator_.readUnit(paired, references);
-  for (std::size_t k = 0; k < reads.size() && k < estimated.size(); ++k)
-    recalibrator_.add(reads[k], estimated[k]->alpha_rad, estimated[k]->beta_rad);
   std::string summary;
-  if (recalibrator_.due()) {
+  // Due is judged pair by pair (every refit_every pairs, whatever the batches).
+  for (std::size_t k = 0; k < reads.size() && k < estimated.size(); ++k) {
+    recalibrator_.add(reads[k], estimated[k]->alpha_rad, estimated[k]->beta_rad);
+    if (!recalibrator_.due()) continue;
     try {
       const UnitCalibrationReport r = estimator_.recalibrate(recalibrator_);
       consistency_.reset();  // the earlier residuals were the old geometry's
@@ -212,12 +167,13 @@ bool InFlightRecalibration::onSave(std_srvs::Trigger::Request&, std_srvs::Trigge
 }
 
 void InFlightRecalibration::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  const SunDirectionInput::Counts counts = references_->counts();
   std::lock_guard<std::mutex> lock(stats_mutex_);
-  stat.add("recalibration references received", references_received_);
+  stat.add("recalibration references received", counts.received);
   stat.add("recalibration pairs in window", pairs_);
   stat.add("recalibration references refused", refused_);
-  stat.add("recalibration images without reference", unpaired_images_);
-  stat.add("recalibration references in unresolved frames", unresolved_frames_);
+  stat.add("recalibration images without reference", counts.unpaired_images);
+  stat.add("recalibration references in unresolved frames", counts.unresolved_frames);
   stat.add("recalibration spread [deg]", spread_deg_);
   stat.add("recalibration refits", refits_);
   stat.add("recalibration failed refits", refit_failures_);

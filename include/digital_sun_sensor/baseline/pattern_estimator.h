@@ -72,13 +72,20 @@ class PatternEstimator : public SunEstimator {
   // sought in its quadrant (plus the field margin across its axes).
   std::vector<SunEstimate> estimateWithSubFovHints(const std::vector<cv::Mat>& images,
                                                    const std::vector<int>& subfov_classes) override;
+  // Where the image fits two places about equally and the design's image at
+  // each does not decide, the coarse direction chooses the place it lies
+  // nearer by at least kCoarseDecisionSigmas of its sigma.
+  std::vector<SunEstimate> estimateWithCoarseDirections(const std::vector<cv::Mat>& images,
+                                                        const CoarseDirections& coarse) override;
+  static constexpr double kCoarseDecisionSigmas = 3.0;
   // The design's spot shapes over the field, which its alias decisions and
   // unexplained-light check render (else computed on first use: the first
   // images of thesis_ca took up to seconds).
   void warmUp(int threads) const override { design_.warmUp(threads); }
 
   // Within `window` (default: the field of view plus the margin).
-  SunEstimate estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window = {}) const;
+  SunEstimate estimateOne(const cv::Mat& image, const std::optional<AngleWindow>& window = {},
+                          const std::optional<CoarseDirection>& coarse = {}) const;
   // The window of a quadrant hint: the quadrant plus the field margin across its axes.
   AngleWindow quadrantWindow(int quadrant) const;
   // The image at `here` against `there` (exposure and threshold as the sensor's).

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -30,6 +31,14 @@ struct SunEstimate {
   std::array<double, 2> model_sigma_rad{};
 };
 
+// A sun direction known coarsely from elsewhere (a coarse sun sensor, the
+// attitude filter's prediction), with its 1-sigma error per axis.
+struct CoarseDirection {
+  double alpha_rad = 0.0, beta_rad = 0.0;
+  double sigma_rad = 0.0;
+};
+using CoarseDirections = std::vector<std::optional<CoarseDirection>>;
+
 class SunEstimator {
  public:
   virtual ~SunEstimator() = default;
@@ -49,6 +58,15 @@ class SunEstimator {
     (void)images;
     (void)subfov_classes;
     throw std::invalid_argument("the " + source() + " estimator takes no sub-FOV hint");
+  }
+  // The same with a coarse direction per image (none: the image alone). An
+  // estimator whose sensor repeats its pattern within the field (thesis_ca:
+  // 5.74 deg in alpha) lets it choose between two places the image fits
+  // about equally; the others need none and ignore it.
+  virtual std::vector<SunEstimate> estimateWithCoarseDirections(const std::vector<cv::Mat>& images,
+                                                                const CoarseDirections& coarse) {
+    (void)coarse;
+    return estimate(images);
   }
   // Does now, on `threads` threads, the one-off work its first images would
   // otherwise pay for (the pattern head's diffraction cache of its design:

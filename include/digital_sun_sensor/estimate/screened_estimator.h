@@ -5,6 +5,7 @@
 // valid = false with the reason in status.
 #pragma once
 
+#include <functional>
 #include <memory>
 
 #include "digital_sun_sensor/common/spike_filter.h"
@@ -56,6 +57,9 @@ class ScreenedEstimator : public SunEstimator {
   // The hints of the images that pass go to the inner estimator.
   std::vector<SunEstimate> estimateWithSubFovHints(const std::vector<cv::Mat>& images,
                                                    const std::vector<int>& subfov_classes) override;
+  // The coarse directions of the images that pass go to the inner estimator.
+  std::vector<SunEstimate> estimateWithCoarseDirections(const std::vector<cv::Mat>& images,
+                                                        const CoarseDirections& coarse) override;
   void warmUp(int threads) const override { inner_->warmUp(threads); }
 
   // The image as the inner estimator is given it: hot pixels repaired and lit
@@ -65,7 +69,10 @@ class ScreenedEstimator : public SunEstimator {
   cv::Mat screenedImage(const cv::Mat& image) const;
 
  private:
-  std::vector<SunEstimate> screenAndEstimate(const std::vector<cv::Mat>& images, const std::vector<int>* hints);
+  // Screens the images and estimates those that pass by `run(passed, where)`
+  // (`where`: their indices among `images`).
+  using Run = std::function<std::vector<SunEstimate>(const std::vector<cv::Mat>&, const std::vector<std::size_t>&)>;
+  std::vector<SunEstimate> screenAndEstimate(const std::vector<cv::Mat>& images, const Run& run);
 
   std::unique_ptr<SunEstimator> inner_;
   ScreenOptions options_;

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "digital_sun_sensor/common/sun_estimate.h"
 #include "digital_sun_sensor/model/metadata.h"
 #include "digital_sun_sensor/model/sscnn.h"
 
@@ -54,7 +55,10 @@ struct Model {
 
   // Inference on sensor images (eval mode, no autograd), averaged over the
   // metadata's inference symmetry; in passes of at most 16 network inputs.
-  std::vector<Prediction> predict(const std::vector<cv::Mat>& images) const;
+  // With `coarse` (one per image), a pattern head chooses between two places
+  // its image fits about equally by it (SscnnNetImpl::forward); other heads
+  // and models with an inference symmetry refuse it.
+  std::vector<Prediction> predict(const std::vector<cv::Mat>& images, const CoarseDirections* coarse = nullptr) const;
   // The same for samples already reduced to their sites (training data), in
   // passes of 64 inputs; no autograd, and the caller chooses train or eval mode.
   std::vector<Prediction> predictSamples(const std::vector<const SparseSample*>& samples) const;

@@ -65,7 +65,10 @@ class SscnnNetImpl : public torch::nn::Module {
   // resolve a class-resolved lattice head (LatticeResolve::kClass) in place
   // of the predicted ones; `known_angles` [B, 2] (training only, normalized):
   // the true angles, from which the geometric head associates the sites in
-  // place of the coarse estimate.
+  // place of the coarse estimate. The pattern head reads `known_angles` [B, 3]
+  // as a coarse direction per image (alpha, beta, its sigma; normalized; a
+  // row of NaN: none), which chooses between two places its image fits
+  // about equally (PatternEstimator::estimateWithCoarseDirections).
   SscnnOutput forward(const sparse::SparseTensor& input, const torch::Tensor& known_classes = {},
                       const torch::Tensor& known_angles = {});
   // The same layers and weights evaluated densely (torch::conv2d over the whole
@@ -168,7 +171,7 @@ class SscnnNetImpl : public torch::nn::Module {
                    std::int64_t batch, const torch::Tensor& known_angles);
   // Pattern head: the images the sites make (every lit pixel; zero
   // elsewhere, as the chip's threshold leaves them), each solved whole.
-  SscnnOutput patternForward(const sparse::SparseTensor& input);
+  SscnnOutput patternForward(const sparse::SparseTensor& input, const torch::Tensor& coarse);
   // Normalized angles of the physics prior at a position [B, 2].
   torch::Tensor priorAngles(const torch::Tensor& position) const;
   torch::Tensor monomials(const torch::Tensor& centroid) const;

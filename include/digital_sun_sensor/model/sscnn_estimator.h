@@ -36,6 +36,11 @@ class SscnnEstimator : public SunEstimator {
   double mismatchThreshold() const;
   std::string unitCalibration() const;
   std::vector<SunEstimate> estimate(const std::vector<cv::Mat>& images) override;
+  // A pattern head (thesis_ca, no mirror images averaged) chooses by them
+  // between two places its image fits about equally; the other heads need
+  // none and ignore them.
+  std::vector<SunEstimate> estimateWithCoarseDirections(const std::vector<cv::Mat>& images,
+                                                        const CoarseDirections& coarse) override;
   void warmUp(int threads) const override;
 
   // In-flight recalibration (geometric heads; the caller serialises these
@@ -51,6 +56,7 @@ class SscnnEstimator : public SunEstimator {
   void saveModel(const std::string& path, const std::string& record) const;
 
  private:
+  std::vector<SunEstimate> estimateWith(const std::vector<cv::Mat>& images, const CoarseDirections* coarse);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

@@ -25,6 +25,7 @@
 #include "digital_sun_sensor/common/sun_estimate.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
 #include "digital_sun_sensor/ros/in_flight_recalibration.h"
+#include "digital_sun_sensor/ros/sun_direction_input.h"
 
 namespace dss {
 
@@ -48,6 +49,8 @@ class CalibrationNode {
   // Held while estimating and while recalibration touches the model.
   std::mutex estimator_mutex_;
   std::unique_ptr<InFlightRecalibration> recalibration_;  // ~recalibration/enabled
+  std::unique_ptr<SunDirectionInput> coarse_sun_;         // ~coarse_sun/topic
+  double coarse_sigma_rad_ = 0.0;
   std::string source_, estimator_problem_, model_path_, calibration_path_;
   std::string inference_symmetry_ = "none";  // of the SSCNN in use
   double mismatch_threshold_ = 0.0;          // its model_mismatch threshold (0: none)

@@ -11,13 +11,9 @@
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
-#include <geometry_msgs/Vector3Stamped.h>
 #include <ros/ros.h>
 #include <std_srvs/Trigger.h>
-#include <tf2_ros/buffer.h>
-#include <tf2_ros/transform_listener.h>
 
-#include <deque>
 #include <memory>
 #include <mutex>
 #include <opencv2/core.hpp>
@@ -27,6 +23,7 @@
 #include "digital_sun_sensor/common/sun_estimate.h"
 #include "digital_sun_sensor/estimate/reference_consistency.h"
 #include "digital_sun_sensor/model/unit_recalibration.h"
+#include "digital_sun_sensor/ros/sun_direction_input.h"
 
 namespace dss {
 
@@ -51,29 +48,19 @@ class InFlightRecalibration {
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
  private:
-  void onReference(const geometry_msgs::Vector3Stamped::ConstPtr& msg);
   bool onSave(std_srvs::Trigger::Request& request, std_srvs::Trigger::Response& response);
-  // The reference for an image, as angles in the image's frame; false when
-  // none lies within the stamp tolerance or tf cannot resolve its frame.
-  bool referenceFor(const std_msgs::Header& image, std::array<double, 2>& angles_rad);
 
   SscnnEstimator& estimator_;
   std::mutex& estimator_mutex_;
   std::string model_path_, output_path_;
-  double max_stamp_difference_s_ = 0.02;
   UnitRecalibrator recalibrator_;
   ReferenceConsistency consistency_, judged_;
-  ros::Subscriber reference_sub_;
+  std::unique_ptr<SunDirectionInput> references_;
   ros::Publisher geometry_pub_;
   ros::ServiceServer save_service_;
-  tf2_ros::Buffer tf_buffer_;
-  tf2_ros::TransformListener tf_listener_;
-
-  std::mutex references_mutex_;
-  std::deque<geometry_msgs::Vector3Stamped::ConstPtr> references_;  // recent, bounded
 
   std::mutex stats_mutex_;  // what diagnose reads
-  std::uint64_t references_received_ = 0, unpaired_images_ = 0, unresolved_frames_ = 0, refit_failures_ = 0;
+  std::uint64_t refit_failures_ = 0;
   std::size_t pairs_ = 0, refused_ = 0, refits_ = 0;
   double spread_deg_ = 0.0;
   std::string last_refit_;
