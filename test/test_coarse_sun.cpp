@@ -9,13 +9,13 @@
 #include <ros/ros.h>
 #include <sensor_msgs/Image.h>
 
-#include <cstring>
 #include <map>
 #include <mutex>
 #include <optional>
 
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/ros/conversions.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
@@ -65,16 +65,10 @@ TEST(CalibrationNode, CoarseSunDirectionChoosesBetweenMirrorImagePlaces) {
       coarse.publish(direction);
       ros::WallDuration(0.05).sleep();  // the direction first
     }
-    auto msg = boost::make_shared<sensor_msgs::Image>();
-    msg->header.stamp = stamp;
-    msg->header.frame_id = "sun_sensor_link";
-    msg->encoding = "mono8";
-    msg->width = static_cast<std::uint32_t>(image.cols);
-    msg->height = static_cast<std::uint32_t>(image.rows);
-    msg->step = static_cast<std::uint32_t>(image.cols);
-    msg->data.resize(msg->step * msg->height);
-    for (int r = 0; r < image.rows; ++r) std::memcpy(&msg->data[r * msg->step], image.ptr(r), msg->step);
-    images.publish(msg);
+    std_msgs::Header header;
+    header.stamp = stamp;
+    header.frame_id = "sun_sensor_link";
+    images.publish(dss::toImageMsg(image, header));
     // One at a time: the node's queue keeps the newest images only.
     const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(60.0);
     while (ros::ok() && ros::WallTime::now() < deadline) {

@@ -17,7 +17,6 @@
 
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <map>
 #include <mutex>
 
@@ -25,6 +24,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/ros/calibration_node.h"
+#include "digital_sun_sensor/ros/conversions.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/random_mask.h"
 #include "digital_sun_sensor/sim/renderer.h"
@@ -130,16 +130,10 @@ TEST(CalibrationNode, RecalibratesADriftedUnitFromReferences) {
     reference.vector.z = sun.z();
     references.publish(reference);
     ros::WallDuration(0.002).sleep();  // the reference first
-    auto msg = boost::make_shared<sensor_msgs::Image>();
-    msg->header.stamp = stamp;
-    msg->header.frame_id = "sun_sensor_link";
-    msg->encoding = image.depth() == CV_8U ? "mono8" : "mono16";
-    msg->width = static_cast<std::uint32_t>(image.cols);
-    msg->height = static_cast<std::uint32_t>(image.rows);
-    msg->step = static_cast<std::uint32_t>(image.cols * image.elemSize());
-    msg->data.resize(msg->step * msg->height);
-    for (int r = 0; r < image.rows; ++r) std::memcpy(&msg->data[r * msg->step], image.ptr(r), msg->step);
-    images.publish(msg);
+    std_msgs::Header header;
+    header.stamp = stamp;
+    header.frame_id = "sun_sensor_link";
+    images.publish(toImageMsg(image, header));
     ros::WallDuration(0.03).sleep();
   }
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(120.0);
