@@ -39,12 +39,12 @@ class SunDirectionInput {
 
   std::string what_;
   double max_stamp_difference_s_;
-  ros::Subscriber sub_;
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;
   mutable std::mutex mutex_;
   std::deque<geometry_msgs::Vector3Stamped::ConstPtr> recent_;
   Counts counts_;
+  ros::Subscriber sub_;  // last: unsubscribed first, before what its callback touches goes
 };
 
 }  // namespace dss
