@@ -53,28 +53,20 @@ TEST(CalibrationNode, CoarseSunDirectionChoosesBetweenMirrorImagePlaces) {
   // The same image three times: no coarse direction, one near the truth, one about midway.
   const std::optional<double> coarse_alpha_deg[] = {std::nullopt, 4.0, 0.3};
   for (int i = 0; i < 3; ++i) {
-    const ros::Time stamp(100.0 + i);
+    std_msgs::Header header;
+    header.stamp = ros::Time(100.0 + i);
+    header.frame_id = "sun_sensor_link";
     if (coarse_alpha_deg[i]) {
-      geometry_msgs::Vector3Stamped direction;
-      direction.header.stamp = stamp;
-      direction.header.frame_id = "sun_sensor_link";
-      const Eigen::Vector3d v = dss::sunVectorFromAngles(dss::degToRad(*coarse_alpha_deg[i]), dss::degToRad(0.5));
-      direction.vector.x = v.x();
-      direction.vector.y = v.y();
-      direction.vector.z = v.z();
-      coarse.publish(direction);
+      coarse.publish(dss::toSunVectorMsg(dss::degToRad(*coarse_alpha_deg[i]), dss::degToRad(0.5), header));
       ros::WallDuration(0.05).sleep();  // the direction first
     }
-    std_msgs::Header header;
-    header.stamp = stamp;
-    header.frame_id = "sun_sensor_link";
     images.publish(dss::toImageMsg(image, header));
     // One at a time: the node's queue keeps the newest images only.
     const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(60.0);
     while (ros::ok() && ros::WallTime::now() < deadline) {
       {
         std::lock_guard<std::mutex> lock(mutex);
-        if (answers.count(stamp.toSec())) break;
+        if (answers.count(header.stamp.toSec())) break;
       }
       ros::WallDuration(0.05).sleep();
     }

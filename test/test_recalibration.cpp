@@ -119,20 +119,13 @@ TEST(CalibrationNode, RecalibratesADriftedUnitFromReferences) {
     const cv::Mat image = renderer.render(sunVectorFromAngles(alpha, beta), 100 + i, nullptr);
     const ros::Time stamp(1000.0 + 0.1 * i);
     truth[stamp.toSec()] = {alpha, beta};
-    geometry_msgs::Vector3Stamped reference;
-    reference.header.stamp = stamp;
-    reference.header.frame_id = "sun_sensor_link";
-    // One reference in twenty is grossly wrong (a star tracker outlier).
-    const Eigen::Vector3d sun = i % 20 == 7 ? sunVectorFromAngles(alpha + degToRad(3.0), beta - degToRad(2.0))
-                                            : sunVectorFromAngles(alpha, beta);
-    reference.vector.x = sun.x();
-    reference.vector.y = sun.y();
-    reference.vector.z = sun.z();
-    references.publish(reference);
-    ros::WallDuration(0.002).sleep();  // the reference first
     std_msgs::Header header;
     header.stamp = stamp;
     header.frame_id = "sun_sensor_link";
+    // One reference in twenty is grossly wrong (a star tracker outlier).
+    references.publish(i % 20 == 7 ? toSunVectorMsg(alpha + degToRad(3.0), beta - degToRad(2.0), header)
+                                   : toSunVectorMsg(alpha, beta, header));
+    ros::WallDuration(0.002).sleep();  // the reference first
     images.publish(toImageMsg(image, header));
     ros::WallDuration(0.03).sleep();
   }

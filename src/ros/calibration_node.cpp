@@ -318,15 +318,12 @@ void CalibrationNode::publish(const std_msgs::Header& image_header, const SunEst
   angles_pub_.publish(angles);
   if (!e.valid) return;
 
-  const Eigen::Vector3d sun = sunVectorFromAngles(e.alpha_rad, e.beta_rad);
-  auto vector = boost::make_shared<geometry_msgs::Vector3Stamped>();
-  vector->header = header;
-  vector->vector.x = sun.x();
-  vector->vector.y = sun.y();
-  vector->vector.z = sun.z();
+  const auto vector =
+      boost::make_shared<geometry_msgs::Vector3Stamped>(toSunVectorMsg(e.alpha_rad, e.beta_rad, header));
   vector_pub_.publish(vector);
 
   if (publish_tf_) {
+    const Eigen::Vector3d sun(vector->vector.x, vector->vector.y, vector->vector.z);
     // The `sun` frame's +x axis points at the sun (docs/design.md, "Frames and angles").
     const Eigen::Quaterniond q = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitX(), sun);
     geometry_msgs::TransformStamped tf;

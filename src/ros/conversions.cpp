@@ -9,6 +9,7 @@
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
 
@@ -115,6 +116,16 @@ std::optional<SunAngles> truthFromSunVector(const geometry_msgs::Vector3Stamped&
   t.valid = v.vector.z > 0.0;
   t.source = "truth";
   return t;
+}
+
+geometry_msgs::Vector3Stamped toSunVectorMsg(double alpha_rad, double beta_rad, const std_msgs::Header& header) {
+  const Eigen::Vector3d sun = sunVectorFromAngles(alpha_rad, beta_rad);
+  geometry_msgs::Vector3Stamped msg;
+  msg.header = header;
+  msg.vector.x = sun.x();
+  msg.vector.y = sun.y();
+  msg.vector.z = sun.z();
+  return msg;
 }
 
 bool insideFieldOfView(const SensorConfig& config, double alpha_rad, double beta_rad) {

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "digital_sun_sensor/sim/geometry.h"
+
 namespace dss {
 namespace {
 
@@ -59,7 +61,8 @@ std::optional<std::array<double, 2>> SunDirectionInput::forImage(const std_msgs:
     return std::nullopt;
   }
   ++counts_.paired;
-  return std::array<double, 2>{std::atan2(v.x, v.z), std::atan2(v.y, v.z)};
+  const SunAnglesRad angles = anglesFromSunVector(Eigen::Vector3d(v.x, v.y, v.z));
+  return std::array<double, 2>{angles.alpha, angles.beta};
 }
 
 SunDirectionInput::Counts SunDirectionInput::counts() const {

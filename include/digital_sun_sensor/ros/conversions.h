@@ -37,6 +37,10 @@ sensor_msgs::Image imageMsgFromBytes(const std::uint8_t* bytes, std::size_t size
 std::optional<SunAngles> truthFromSunVector(const geometry_msgs::Vector3Stamped& vector,
                                             const std::string& sensor_frame, std::string& why);
 
+// The unit sun vector of the angles (sensor frame of `header`): what
+// calibration_node publishes, and what a reference or coarse sun direction carries.
+geometry_msgs::Vector3Stamped toSunVectorMsg(double alpha_rad, double beta_rad, const std_msgs::Header& header);
+
 SunAngles toTruthMsg(const ImageTruth& truth, const SensorConfig& config, const std_msgs::Header& header);
 SpotCentres toSpotsMsg(const ImageTruth& truth, const std_msgs::Header& header);
 
