@@ -207,7 +207,9 @@ TEST(ShippedModels, WideMaFamily) { expectHeadline("wide_ma_family", 300); }
 
 // wide_ma's head publishes nothing the backbone's features reach (angles
 // from the spots and the aperture code, the class from the position, a
-// constant sigma): inference skips it and publishes the same to the bit.
+// constant sigma), nor do the family models' geometric heads as created
+// (feature corrections of zero weight, sigma from the lit sites or a
+// constant): inference skips the backbone and publishes the same to the bit.
 // thesis_ca's pattern head never runs the network; the other shipped models
 // run their backbones.
 TEST(ShippedModels, BackboneRunsOnlyWhereWhatIsPublishedReadsIt) {
@@ -215,31 +217,41 @@ TEST(ShippedModels, BackboneRunsOnlyWhereWhatIsPublishedReadsIt) {
   for (const std::string name :
        {"thesis_sa", "thesis_sa_t50", "thesis_ma", "thesis_sa_published", "thesis_ma_published"})
     EXPECT_TRUE(loadModel(std::string(DSS_SOURCE_DIR) + "/models/" + name + ".dssmodel").net->backboneNeeded()) << name;
-  Model m = loadModel(std::string(DSS_SOURCE_DIR) + "/models/wide_ma.dssmodel");
-  m.net->eval();
-  ASSERT_FALSE(m.net->backboneNeeded());
-  DatasetSpec spec = readRecipe("wide_ma").test;
-  spec.count = 12;
-  std::vector<cv::Mat> images;
-  DatasetGenerator(parseSensorConfig(m.meta.sensor_yaml, "wide_ma"), spec).run([&](const DatasetItem& item) {
-    images.push_back(item.image);
-  });
-  const auto skipped = m.predict(images);
-  m.net->setSkipUnusedBackbone(false);
-  const auto full = m.predict(images);
-  ASSERT_EQ(skipped.size(), full.size());
-  for (std::size_t i = 0; i < full.size(); ++i) {
-    EXPECT_EQ(skipped[i].alpha_rad, full[i].alpha_rad) << i;
-    EXPECT_EQ(skipped[i].beta_rad, full[i].beta_rad) << i;
-    EXPECT_EQ(skipped[i].alpha_variance_rad2, full[i].alpha_variance_rad2) << i;
-    EXPECT_EQ(skipped[i].beta_variance_rad2, full[i].beta_variance_rad2) << i;
-    EXPECT_EQ(skipped[i].subfov_class, full[i].subfov_class) << i;
-    EXPECT_EQ(skipped[i].code_margin, full[i].code_margin) << i;
+  for (const std::string name : {"wide_ma", "wide_ma_family", "thesis_ma_family", "thesis_sa_family"}) {
+    SCOPED_TRACE(name);
+    Model m = loadModel(std::string(DSS_SOURCE_DIR) + "/models/" + name + ".dssmodel");
+    m.net->eval();
+    ASSERT_FALSE(m.net->backboneNeeded());
+    DatasetSpec spec = readRecipe(name).test;
+    spec.count = 6;
+    std::vector<cv::Mat> images;
+    DatasetGenerator(parseSensorConfig(m.meta.sensor_yaml, name), spec).run([&](const DatasetItem& item) {
+      images.push_back(item.image);
+    });
+    const auto skipped = m.predict(images);
+    m.net->setSkipUnusedBackbone(false);
+    const auto full = m.predict(images);
+    ASSERT_EQ(skipped.size(), full.size());
+    for (std::size_t i = 0; i < full.size(); ++i) {
+      EXPECT_EQ(skipped[i].alpha_rad, full[i].alpha_rad) << i;
+      EXPECT_EQ(skipped[i].beta_rad, full[i].beta_rad) << i;
+      EXPECT_EQ(skipped[i].alpha_variance_rad2, full[i].alpha_variance_rad2) << i;
+      EXPECT_EQ(skipped[i].beta_variance_rad2, full[i].beta_variance_rad2) << i;
+      EXPECT_EQ(skipped[i].subfov_class, full[i].subfov_class) << i;
+      EXPECT_EQ(skipped[i].code_margin, full[i].code_margin) << i;
+    }
+    // A variance or feature corrections that read the features need the backbone again.
+    torch::NoGradGuard no_grad;
+    auto parameters = m.net->named_parameters();
+    const torch::Tensor variance = parameters["variance.weight"].clone();
+    parameters["variance.weight"].fill_(1e-3);
+    EXPECT_TRUE(m.net->backboneNeeded());
+    parameters["variance.weight"].copy_(variance);
+    if (m.meta.arch.feature_corrections) {
+      parameters["output.weight"].fill_(1e-3);
+      EXPECT_TRUE(m.net->backboneNeeded());
+    }
   }
-  // A variance that reads the features needs the backbone again.
-  torch::NoGradGuard no_grad;
-  m.net->named_parameters()["variance.weight"].fill_(1e-3);
-  EXPECT_TRUE(m.net->backboneNeeded());
 }
 
 // A unit calibrated from a family model keeps its input envelope and its

@@ -172,8 +172,11 @@ torch::Tensor SscnnNetImpl::priorAngles(const torch::Tensor& position) const {
 }
 
 bool SscnnNetImpl::backboneNeeded() const {
-  if (arch_.pattern_head) return false;                                // its forward never runs the network
-  if (!arch_.centroid_pool || arch_.feature_corrections) return true;  // the angles read the features
+  if (arch_.pattern_head) return false;   // its forward never runs the network
+  if (!arch_.centroid_pool) return true;  // the angles read the features
+  // Feature corrections of zero weight (a geometric head as created: the
+  // family models) add their bias alone, whatever the features.
+  if (arch_.feature_corrections && output_->weight.count_nonzero().item<std::int64_t>() != 0) return true;
   if (arch_.latticeHead() && arch_.lattice_resolve == LatticeResolve::kClass) return true;  // pitches from the class
   if (!arch_.apertureClassLattice() && !arch_.geometric_head) return true;  // the class is the classifier's
   // The geometric head's variance also reads the solve's log variance (its last two inputs).

@@ -109,11 +109,12 @@ class SscnnNetImpl : public torch::nn::Module {
   std::int64_t parameterCount() const;
   // Whether what a prediction publishes (angles, variance, sub-FOV class)
   // reads the backbone's pooled features. Not where the angles are a
-  // function of the spot reading alone (no feature corrections, whole
-  // pitches from the aperture code or the centroid), the class goes with the
-  // resolved position and the variance's weights on the features are zero
-  // (a constant sigma): wide_ma's shipped head, whose trained backbone
-  // changed no published digit. Inference (eval mode, no autograd) then skips
+  // function of the spot reading alone (no feature corrections, or ones of
+  // zero weight; whole pitches from the aperture code or the centroid), the
+  // class goes with the resolved position and the variance's weights on the
+  // features are zero (a constant sigma): wide_ma's shipped head, whose
+  // trained backbone changed no published digit, and the family models'
+  // geometric heads as created. Inference (eval mode, no autograd) then skips
   // the backbone unless setSkipUnusedBackbone(false); the class logits are
   // those of zero features (Prediction::class_probability means nothing).
   bool backboneNeeded() const;
