@@ -21,7 +21,9 @@
 # Data in $DATA_DIR (default .ws/units_data/$FAMILY); every file that exists is
 # reused, so a cut run continues where it stopped. Knobs (environment): UNITS,
 # SCALES, NS, DRIFT_UNITS, EPOCHS (mask A's family model), JOBS (units in
-# parallel, default 2).
+# parallel, default 2), LAB_SAMPLING (the lab images' directions: random, the
+# default, or spread, a lab plan that covers the field for every N; data then
+# in .ws/units_data/<FAMILY>_spread, the same test images).
 set -euo pipefail
 source "$(dirname "$0")/dss_env.sh"
 FAMILY="${FAMILY:-A}"
@@ -40,7 +42,12 @@ case "$FAMILY" in
   wide_ma) SEEDS=(9801 9802 9803 9811) MAX_DISAGREEMENT_DEG=20 ;;
   *) echo "unit_tables.sh: FAMILY must be A, thesis_ma, thesis_sa or wide_ma (got '$FAMILY')" >&2; exit 2 ;;
 esac
-DATA="${DATA_DIR:-$WS/units_data/$FAMILY}"
+LAB_SAMPLING="${LAB_SAMPLING:-random}"
+case "$LAB_SAMPLING" in
+  random) DATA="${DATA_DIR:-$WS/units_data/$FAMILY}" ;;
+  spread) DATA="${DATA_DIR:-$WS/units_data/${FAMILY}_spread}" ;;
+  *) echo "unit_tables.sh: LAB_SAMPLING must be random or spread (got '$LAB_SAMPLING')" >&2; exit 2 ;;
+esac
 first=${SEEDS[3]}
 UNITS="${UNITS:-$first $((first + 1)) $((first + 2)) $((first + 3)) $((first + 4))}"
 SCALES="${SCALES:-1 3}"
@@ -111,7 +118,8 @@ PY
 unit() {
   local seed=$1 scale=$2 u="u$1_x$2"
   local draw=(--sensor $FAMILY.yaml --anomalies "as_built=$scale" --set as_built.aperture_diameter_sigma_um=0)
-  [ -f "$u.lab.bag" ] || quiet "$DSS" generate "${draw[@]}" --count 400 --seed "$seed" --threads 1 --out "$u.lab.bag"
+  [ -f "$u.lab.bag" ] || quiet "$DSS" generate "${draw[@]}" --count 400 --seed "$seed" --sampling "$LAB_SAMPLING" \
+    --threads 1 --out "$u.lab.bag"
   [ -f "$u.test.bag" ] || quiet "$DSS" generate "${draw[@]}" --count 2000 --seed "$seed" --offset 100000 --threads 1 \
     --out "$u.test.bag"
   for n in $NS; do

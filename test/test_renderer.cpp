@@ -2,7 +2,9 @@
 // (a unit's mask height in its spots' diffraction).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
@@ -207,6 +209,40 @@ TEST(Sampling, EdgeSamplingStaysInTheOuterBand) {
   EXPECT_THROW(AttitudeSampler(c, SamplingMode::kEdge, 7, 5.0), std::invalid_argument);
   EXPECT_EQ(parseSamplingMode("edge"), SamplingMode::kEdge);
   EXPECT_EQ(toString(SamplingMode::kEdge), "edge");
+}
+
+// A lab plan's first N points cover the field evenly for every N: 25 leave
+// no ninth of it empty and 50 no 25th (uniform random draws leave a ninth
+// empty about half the time), for every seed; each seed another plan.
+TEST(Sampling, SpreadPlanCoversTheFieldForEveryCount) {
+  const SensorConfig c = shipped("wide_ma");  // +-60 deg
+  const double alpha_max = c.fov.alpha_max_deg * kRadPerDeg, beta_max = c.fov.beta_max_deg * kRadPerDeg;
+  auto emptiest = [&](const AttitudeSampler& sampler, int count, int cells_per_side) {
+    std::vector<int> cells(cells_per_side * cells_per_side, 0);
+    for (int i = 0; i < count; ++i) {
+      const SunAnglesRad a = anglesFromSunVector(sampler.sunVector(i));
+      EXPECT_LE(std::abs(a.alpha), alpha_max + 1e-12);
+      EXPECT_LE(std::abs(a.beta), beta_max + 1e-12);
+      const int col = std::min(cells_per_side - 1, static_cast<int>((a.alpha / alpha_max + 1) / 2 * cells_per_side));
+      const int row = std::min(cells_per_side - 1, static_cast<int>((a.beta / beta_max + 1) / 2 * cells_per_side));
+      ++cells[row * cells_per_side + col];
+    }
+    return *std::min_element(cells.begin(), cells.end());
+  };
+  int random_with_an_empty_ninth = 0;
+  for (std::uint64_t seed = 1; seed <= 20; ++seed) {
+    const AttitudeSampler plan(c, SamplingMode::kSpread, seed);
+    EXPECT_GE(emptiest(plan, 25, 3), 1) << seed;
+    EXPECT_GE(emptiest(plan, 50, 5), 1) << seed;
+    random_with_an_empty_ninth += emptiest(AttitudeSampler(c, SamplingMode::kRandom, seed), 25, 3) == 0 ? 1 : 0;
+  }
+  EXPECT_GE(random_with_an_empty_ninth, 3);
+  EXPECT_NE(AttitudeSampler(c, SamplingMode::kSpread, 1).sunVector(0),
+            AttitudeSampler(c, SamplingMode::kSpread, 2).sunVector(0));
+  EXPECT_EQ(AttitudeSampler(c, SamplingMode::kSpread, 1).sunVector(7),
+            AttitudeSampler(c, SamplingMode::kSpread, 1).sunVector(7));
+  EXPECT_EQ(parseSamplingMode("spread"), SamplingMode::kSpread);
+  EXPECT_EQ(toString(SamplingMode::kSpread), "spread");
 }
 
 }  // namespace

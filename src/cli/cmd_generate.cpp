@@ -67,7 +67,7 @@ int runGenerate(int argc, char** argv) {
           {"seed", "S", "dataset seed (attitudes, noise, sensor draws)", "", true, false},
           {"sampling", "MODE",
            "random (uniform over the FOV) | edge (uniform over its outer band) | grid "
-           "(published protocol)",
+           "(published protocol) | spread (a lab plan: the first N cover the FOV evenly for any N)",
            "random", false, false},
           {"edge-band-deg", "DEG", "edge sampling: width of the band inside the FOV's border",
            defaultText(DatasetSpec{}.edge_band_deg), false, false},

@@ -10,12 +10,21 @@
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
+namespace {
+
+// R2's steps: 1 / g and 1 / g^2 for the plastic number g (g^3 = g + 1), the
+// two-dimensional golden ratio; its points stay evenly spread for every count.
+constexpr double kPlasticNumber = 1.32471795724474602596;
+constexpr double kSpreadStep[2] = {1.0 / kPlasticNumber, 1.0 / (kPlasticNumber * kPlasticNumber)};
+
+}  // namespace
 
 SamplingMode parseSamplingMode(const std::string& text) {
   if (text == "random") return SamplingMode::kRandom;
   if (text == "edge") return SamplingMode::kEdge;
   if (text == "grid") return SamplingMode::kGrid;
-  throw std::invalid_argument("unknown sampling '" + text + "' (expected random, edge or grid)");
+  if (text == "spread") return SamplingMode::kSpread;
+  throw std::invalid_argument("unknown sampling '" + text + "' (expected random, edge, grid or spread)");
 }
 
 std::string toString(SamplingMode mode) {
@@ -24,6 +33,8 @@ std::string toString(SamplingMode mode) {
       return "random";
     case SamplingMode::kEdge:
       return "edge";
+    case SamplingMode::kSpread:
+      return "spread";
     case SamplingMode::kGrid:
       break;
   }
@@ -42,6 +53,11 @@ AttitudeSampler::AttitudeSampler(const SensorConfig& config, SamplingMode mode, 
       throw std::invalid_argument("edge sampling: the band (" + std::to_string(edge_band_deg) +
                                   " deg) must be > 0 and at most the half field of view");
     edge_band_rad_ = degToRad(edge_band_deg);
+  }
+  if (mode_ == SamplingMode::kSpread) {
+    Rng rng(deriveSeed(seed, 0x5E7EADULL));
+    spread_shift_[0] = rng.uniform(0.0, 1.0);
+    spread_shift_[1] = rng.uniform(0.0, 1.0);
   }
   if (mode_ == SamplingMode::kGrid) {
     grid_half_x_ = config.detector.width_px / 2;
@@ -72,6 +88,16 @@ Eigen::Vector3d AttitudeSampler::sunVector(std::uint64_t index) const {
       if (std::abs(alpha) >= alpha_max_rad_ - edge_band_rad_ || std::abs(beta) >= beta_max_rad_ - edge_band_rad_)
         return sunVectorFromAngles(alpha, beta);
     }
+  }
+  if (mode_ == SamplingMode::kSpread) {
+    // Point 0 would be the shift itself: start at 1. (The fraction of
+    // index * step keeps ~1e-10 up to index 1e6.)
+    auto at = [&](int axis) {
+      const double x = static_cast<double>(index + 1) * kSpreadStep[axis] + spread_shift_[axis];
+      return x - std::floor(x);
+    };
+    const double u = at(0), v = at(1);
+    return sunVectorFromAngles((2.0 * u - 1.0) * alpha_max_rad_, (2.0 * v - 1.0) * beta_max_rad_);
   }
   const std::uint32_t point = order_[(index) % order_.size()];
   const int width = 2 * grid_half_x_ + 1;

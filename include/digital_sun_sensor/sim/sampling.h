@@ -1,7 +1,8 @@
 // Sun directions for datasets: uniform random over the field of view, uniform
 // over its outer band (where the spot is cut by the detector edge: rare in a
-// uniform draw, and where the largest errors arise), or the published
-// protocol's grid of spot centres on integer pixel offsets.
+// uniform draw, and where the largest errors arise), the published
+// protocol's grid of spot centres on integer pixel offsets, or a spread lab
+// plan (turntable points that cover the field evenly for any count).
 #pragma once
 
 #include <Eigen/Core>
@@ -13,7 +14,7 @@
 
 namespace dss {
 
-enum class SamplingMode { kRandom, kEdge, kGrid };
+enum class SamplingMode { kRandom, kEdge, kGrid, kSpread };
 
 SamplingMode parseSamplingMode(const std::string& text);  // throws std::invalid_argument
 std::string toString(SamplingMode mode);
@@ -25,6 +26,11 @@ class AttitudeSampler {
   // visited in a seeded random order; alpha = -atan(x p / h).
   // Edge: uniform over the part of the field within `edge_band_deg` of its
   // border in alpha or beta (required > 0 for kEdge, ignored otherwise).
+  // Spread: the additive recurrence of the plastic number (Roberts' R2
+  // sequence) over the field, shifted modulo the field by a seeded offset:
+  // its first N points fill the field evenly for every N (a lab's first 25
+  // turntable points leave no ninth of it empty), and each seed gives
+  // another plan.
   AttitudeSampler(const SensorConfig& config, SamplingMode mode, std::uint64_t seed, double edge_band_deg = 0.0);
 
   // Sun vector (sensor frame) of dataset image `index`; deterministic.
@@ -37,6 +43,7 @@ class AttitudeSampler {
   std::uint64_t seed_;
   double alpha_max_rad_, beta_max_rad_;
   double edge_band_rad_ = 0.0;
+  double spread_shift_[2] = {0.0, 0.0};  // in units of the field's width
   double pitch_over_height_;
   int grid_half_x_ = 0, grid_half_y_ = 0;
   std::vector<std::uint32_t> order_;
