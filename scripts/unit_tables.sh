@@ -251,7 +251,7 @@ PY
 if [ "${1:-}" != table ]; then
   family
   export -f unit quiet log
-  export DSS DATA NS FAMILY MAX_DISAGREEMENT_DEG
+  export DSS DATA NS FAMILY MAX_DISAGREEMENT_DEG LAB_SAMPLING
   for k in $SCALES; do for s in $UNITS; do echo "$s $k"; done; done |
     xargs -P "$JOBS" -n 2 bash -c 'cd "$DATA" && unit "$0" "$1"'
   export -f drift

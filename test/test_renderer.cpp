@@ -4,10 +4,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numeric>
 #include <vector>
 
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sim/field_coverage.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
@@ -218,16 +220,17 @@ TEST(Sampling, SpreadPlanCoversTheFieldForEveryCount) {
   const SensorConfig c = shipped("wide_ma");  // +-60 deg
   const double alpha_max = c.fov.alpha_max_deg * kRadPerDeg, beta_max = c.fov.beta_max_deg * kRadPerDeg;
   auto emptiest = [&](const AttitudeSampler& sampler, int count, int cells_per_side) {
-    std::vector<int> cells(cells_per_side * cells_per_side, 0);
+    std::vector<double> alpha, beta;
     for (int i = 0; i < count; ++i) {
       const SunAnglesRad a = anglesFromSunVector(sampler.sunVector(i));
       EXPECT_LE(std::abs(a.alpha), alpha_max + 1e-12);
       EXPECT_LE(std::abs(a.beta), beta_max + 1e-12);
-      const int col = std::min(cells_per_side - 1, static_cast<int>((a.alpha / alpha_max + 1) / 2 * cells_per_side));
-      const int row = std::min(cells_per_side - 1, static_cast<int>((a.beta / beta_max + 1) / 2 * cells_per_side));
-      ++cells[row * cells_per_side + col];
+      alpha.push_back(a.alpha);
+      beta.push_back(a.beta);
     }
-    return *std::min_element(cells.begin(), cells.end());
+    const FieldCoverage coverage = measureFieldCoverage(c, alpha, beta, cells_per_side);
+    EXPECT_EQ(std::accumulate(coverage.counts.begin(), coverage.counts.end(), 0), count);
+    return coverage.leastCount();
   };
   int random_with_an_empty_ninth = 0;
   for (std::uint64_t seed = 1; seed <= 20; ++seed) {
@@ -241,6 +244,10 @@ TEST(Sampling, SpreadPlanCoversTheFieldForEveryCount) {
             AttitudeSampler(c, SamplingMode::kSpread, 2).sunVector(0));
   EXPECT_EQ(AttitudeSampler(c, SamplingMode::kSpread, 1).sunVector(7),
             AttitudeSampler(c, SamplingMode::kSpread, 1).sunVector(7));
+  // Directions outside the field are not counted; a partition needs a cell.
+  EXPECT_EQ(measureFieldCoverage(c, {0.0, 1.2 * alpha_max}, {0.0, 0.0}, 1).counts, std::vector<int>{1});
+  EXPECT_THROW(measureFieldCoverage(c, {0.0}, {0.0}, 0), std::invalid_argument);
+  EXPECT_THROW(measureFieldCoverage(c, {0.0}, {}, 3), std::invalid_argument);
   EXPECT_EQ(parseSamplingMode("spread"), SamplingMode::kSpread);
   EXPECT_EQ(toString(SamplingMode::kSpread), "spread");
 }

@@ -13,6 +13,7 @@
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/unit_calibration.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
+#include "digital_sun_sensor/sim/field_coverage.h"
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/bias_calibration.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
@@ -33,6 +34,10 @@ constexpr std::size_t kMinSigmaImages = 100;
 constexpr std::size_t kMinCorrectionImages = 25;
 constexpr double kMinFamilyCoverage = 0.5;
 constexpr int kMaxCorrectionDegree = 3;
+// The lab images' cover of the field is judged on its 3 x 3 partition in
+// alpha and beta: 25 uniform draws leave one of those ninths empty about
+// half the time, a spread plan of 25 never.
+constexpr int kCoverageCellsPerSide = 3;
 }  // namespace
 
 int runCalibrateUnit(int argc, char** argv) {
@@ -48,13 +53,13 @@ int runCalibrateUnit(int argc, char** argv) {
       "atomically, "
       "recording the calibration (data, images, residuals, what "
       "changed) in its metadata, and prints one JSON line. Use images of the unit alone (a turntable in the lab: "
-      "25 over the field of view are typically enough).",
+      "25 spread over the field of view are typically enough; a note says when they leave part of it empty).",
       {
           {"model", "MODEL", "model file to calibrate (a family model, or a unit model to recalibrate)", "", true,
            false},
           {"data", "BAG", "labelled bag(s) of the unit", "", true, true},
           {"out", "MODEL", "unit model file to write (may be --model)", "", true, false},
-          {"max-images", "N", "use at most N images, evenly spaced over all bags (0: all)", "0", false, false},
+          {"max-images", "N", "use the first N images of the bags, in order (0: all)", "0", false, false},
           {"refit", "MODE",
            "add to the smooth angle correction (degree <= " + std::to_string(kMaxCorrectionDegree) +
                ", cross-validated) and refit the predicted sigma on these images once the geometry is fitted: 'yes', "
@@ -98,6 +103,18 @@ int runCalibrateUnit(int argc, char** argv) {
       readLabelledBags("calibrate-unit", args.all("data"), sensor, topics, static_cast<std::uint64_t>(max_images));
   std::string bags;
   for (const auto& b : args.all("data")) bags += (bags.empty() ? "" : " ") + b;
+  std::vector<double> lab_alpha_rad, lab_beta_rad;
+  for (const SparseSample& s : data.samples.samples()) {
+    lab_alpha_rad.push_back(s.alpha_rad);
+    lab_beta_rad.push_back(s.beta_rad);
+  }
+  const FieldCoverage coverage = measureFieldCoverage(sensor, lab_alpha_rad, lab_beta_rad, kCoverageCellsPerSide);
+  if (coverage.emptyCells() > 0)
+    std::cerr << "note: the " << data.samples.size() << " lab images leave " << coverage.emptyCells() << " of "
+              << coverage.counts.size()
+              << " parts of the field of view (its 3 x 3 partition in alpha and beta) without an image; the unit's "
+                 "fit rests there on the rest of the field. Lab points spread over the field cover it (as dss generate "
+                 "--sampling spread draws them)\n";
   const UnitCalibrationReport report =
       calibrateUnit(model, data.samples, bags + " (" + std::to_string(data.samples.size()) + " images)", options);
   // What the geometry leaves of a unit (a smooth angle error: 0.0004 ->
@@ -162,6 +179,7 @@ int runCalibrateUnit(int argc, char** argv) {
               << ", \"beta_within_1sigma_before\": " << sigma->beta_before.within[0]
               << ", \"beta_within_1sigma_after\": " << sigma->beta_after.within[0];
   const InputEnvelope envelope = inputEnvelopeOf(model.meta);
+  std::cout << ", \"field_ninths_empty\": " << coverage.emptyCells();
   std::cout << ", \"lit_sites_min\": " << envelope.min_sites << ", \"lit_sites_max\": " << envelope.max_sites;
   if (correction) std::cout << ", \"correction_degree_added\": " << correction->degree;
   std::cout << ", \"refit\": " << (sigma ? "true" : "false");
