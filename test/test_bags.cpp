@@ -276,6 +276,12 @@ TEST(CalibrateUnit, ShippedFamilyModelCalibratesADrawnUnit) {
   EXPECT_EQ(images, 100);
   EXPECT_GE(flagged + within_3_sigma, 95);
 
+  // Five lab images leave at least four ninths of the field without one: said.
+  r = run("calibrate-unit --model " + family + " --data " + lab + " --max-images 5 --out " + unit);
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_GE(jsonNumber(lastLine(r.output, "{\"command\""), "field_ninths_empty"), 4.0) << r.output;
+  EXPECT_NE(r.output.find("note: the 5 lab images leave"), std::string::npos) << r.output;
+
   r = run("calibrate-unit --model " + family + " --data " + lab + " --out " + unit);
   ASSERT_EQ(r.code, 0) << r.output;
   r = run("eval --data " + test + " --estimator sscnn:" + unit + " --crlb-samples 0");
