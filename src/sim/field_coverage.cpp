@@ -1,8 +1,8 @@
 #include "digital_sun_sensor/sim/field_coverage.h"
 
 #include <algorithm>
-#include <cmath>
 #include <stdexcept>
+#include <string>
 
 #include "digital_sun_sensor/common/units.h"
 
