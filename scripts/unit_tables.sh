@@ -20,7 +20,7 @@
 #   FAMILY=thesis_ma scripts/unit_tables.sh table   the tables from what is there
 # Data in $DATA_DIR (default .ws/units_data/$FAMILY); every file that exists is
 # reused, so a cut run continues where it stopped. Knobs (environment): UNITS,
-# SCALES, NS, DRIFT_UNITS, EPOCHS (mask A's family model), JOBS (units in
+# SCALES, NS, DRIFT_UNITS (empty: no drift part), EPOCHS (mask A's family model), JOBS (units in
 # parallel, default 2), LAB_SAMPLING (the lab images' directions: random, the
 # default, or spread, a lab plan that covers the field for every N; data then
 # in .ws/units_data/<FAMILY>_spread, the same test images).
@@ -52,7 +52,7 @@ first=${SEEDS[3]}
 UNITS="${UNITS:-$first $((first + 1)) $((first + 2)) $((first + 3)) $((first + 4))}"
 SCALES="${SCALES:-1 3}"
 NS="${NS:-0 10 25 50 100 400}"
-DRIFT_UNITS="${DRIFT_UNITS:-$first $((first + 1)) $((first + 2))}"
+DRIFT_UNITS="${DRIFT_UNITS-$first $((first + 1)) $((first + 2))}"
 EPOCHS="${EPOCHS:-2}"
 JOBS="${JOBS:-2}"
 mkdir -p "$DATA"
@@ -232,9 +232,10 @@ for k in scales:
         c = [x for x in (stats("u%s_x%s.n%s.centroid.csv" % (u, k, n)) for u in units) if x]
         label = "none (the design's)" if n == "0" else n
         print("| %s× | %s | %s | %s |" % (k, label, cells(s, len(units), True), cells(c, len(units), False)))
-print()
-print("| unit | calibrated (400 lab images) mean α / β (deg) | drifted, not recalibrated | recalibrated from 200 references | with 5 % of the references 2–5° wrong | baseline calibrated on the 200 references |")
-print("|---|---|---|---|---|---|")
+if drift_units:
+    print()
+    print("| unit | calibrated (400 lab images) mean α / β (deg) | drifted, not recalibrated | recalibrated from 200 references | with 5 % of the references 2–5° wrong | baseline calibrated on the 200 references |")
+    print("|---|---|---|---|---|---|")
 def cell(r):
     if r is None:
         return "—"
@@ -253,8 +254,8 @@ if [ "${1:-}" != table ]; then
   export -f unit quiet log
   export DSS DATA NS FAMILY MAX_DISAGREEMENT_DEG LAB_SAMPLING
   for k in $SCALES; do for s in $UNITS; do echo "$s $k"; done; done |
-    xargs -P "$JOBS" -n 2 bash -c 'cd "$DATA" && unit "$0" "$1"'
+    xargs -r -P "$JOBS" -n 2 bash -c 'cd "$DATA" && unit "$0" "$1"'
   export -f drift
-  for s in $DRIFT_UNITS; do echo "$s"; done | xargs -P "$JOBS" -n 1 bash -c 'cd "$DATA" && drift "$0"'
+  for s in $DRIFT_UNITS; do echo "$s"; done | xargs -r -P "$JOBS" -n 1 bash -c 'cd "$DATA" && drift "$0"'
 fi
 tables

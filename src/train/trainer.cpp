@@ -136,12 +136,12 @@ FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& opti
   // learned factor on them read drawn mask G 9 % worse than the baseline, the
   // plain intensity level with it (docs/sscnn.md#site-weights-and-value-saturation). The other
   // heads start from equal weights and learn them.
-  d.geometric_head = metadataFor(sensor, d.arch, d.head).arch.geometric_head;
-  if (options.centroid_weighting.empty()) options.centroid_weighting = d.geometric_head ? "intensity" : "learned";
+  const bool geometric_head = metadataFor(sensor, d.arch, d.head).arch.geometric_head;
+  if (options.centroid_weighting.empty()) options.centroid_weighting = geometric_head ? "intensity" : "learned";
   d.arch.centroid_weighting = parseCentroidWeighting(options.centroid_weighting);
   // Not given: the geometric head's is chosen on the validation images when
   // the model is written (train/value_saturation_choice), trained with 0.
-  d.choose_value_saturation = d.geometric_head && options.value_saturation < 0.0;
+  d.choose_value_saturation = geometric_head && options.value_saturation < 0.0;
   if (options.value_saturation < 0.0) options.value_saturation = 0.0;
   d.arch.value_saturation = options.value_saturation;
   return d;

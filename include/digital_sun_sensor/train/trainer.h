@@ -108,7 +108,6 @@ struct TrainProgress {
 struct FreshModelDesign {
   ArchSpec arch;
   HeadOptions head;
-  bool geometric_head = false;
   // TrainOptions::value_saturation was not given and the head is geometric:
   // the trainer chooses it when it writes the model (arch holds 0 meanwhile).
   bool choose_value_saturation = false;
