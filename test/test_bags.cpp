@@ -209,6 +209,7 @@ TEST(Baseline, CalibrateThenEvalPrintsEveryKey) {
   const std::string fit = lastLine(r.output, "{\"images\"");
   EXPECT_EQ(jsonNumber(fit, "images"), 80);
   EXPECT_LT(jsonNumber(fit, "rms_px_fitted"), 0.5) << fit;
+  EXPECT_EQ(jsonNumber(fit, "field_ninths_empty"), 0) << fit;  // 80 images over the field
   r = run("eval --data " + test + " --estimator centroid:" + calib + " --csv " + csv + " --crlb-samples 5");
   ASSERT_EQ(r.code, 0) << r.output;
   const std::string line = lastLine(r.output, "{\"estimator\"");

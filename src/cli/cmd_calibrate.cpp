@@ -7,6 +7,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sim/geometry.h"
+#include "lab_coverage.h"
 #include "progress.h"
 
 namespace dss::cli {
@@ -52,6 +53,7 @@ int runCalibrate(int argc, char** argv) {
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
 
   std::vector<CalibrationSample> samples;
+  std::vector<double> lab_alpha_rad, lab_beta_rad;
   Progress progress("calibrate: spots",
                     max_images ? std::min(max_images, reader.imageMessages()) : reader.imageMessages());
   const BagReadStats stats = reader.forEach([&](const LabelledImage& item) {
@@ -59,6 +61,8 @@ int runCalibrate(int argc, char** argv) {
     if (item.truth.valid) {
       samples.push_back(
           {sunVectorFromAngles(item.truth.alpha, item.truth.beta), extractSpots(item.image, calibration.extraction)});
+      lab_alpha_rad.push_back(item.truth.alpha);
+      lab_beta_rad.push_back(item.truth.beta);
     }
     progress.update(item.index + 1);
     return max_images == 0 || item.index + 1 < max_images;
@@ -66,6 +70,7 @@ int runCalibrate(int argc, char** argv) {
   progress.finish();
   std::cerr << "read " << describe(stats) << "\n";
   if (samples.empty()) throw std::runtime_error("no usable labelled images in the data");
+  const FieldCoverage coverage = noteLabCoverage(*config, lab_alpha_rad, lab_beta_rad);
 
   const CalibrationFitReport report = fitCalibration(samples, calibration, options);
   saveCalibration(args.get("out"), calibration);
@@ -86,7 +91,8 @@ int runCalibrate(int argc, char** argv) {
        << ", \"height_um\": " << g.height_um << ", \"offset_x_um\": " << g.offset_x_um
        << ", \"offset_y_um\": " << g.offset_y_um << ", \"rotation_deg\": " << g.rotation_rad * kDegPerRad
        << ", \"tilt_x_deg\": " << g.tilt_x_rad * kDegPerRad << ", \"tilt_y_deg\": " << g.tilt_y_rad * kDegPerRad
-       << ", \"polynomial_degree\": " << calibration.polynomial.degree << "}";
+       << ", \"polynomial_degree\": " << calibration.polynomial.degree
+       << ", \"field_ninths_empty\": " << coverage.emptyCells() << "}";
   std::cout << json.str() << std::endl;
   return 0;
 }

@@ -13,10 +13,10 @@
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/unit_calibration.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
-#include "digital_sun_sensor/sim/field_coverage.h"
 #include "digital_sun_sensor/sparse/threads.h"
 #include "digital_sun_sensor/train/bias_calibration.h"
 #include "digital_sun_sensor/train/sigma_calibration.h"
+#include "lab_coverage.h"
 
 namespace dss::cli {
 namespace {
@@ -34,10 +34,6 @@ constexpr std::size_t kMinSigmaImages = 100;
 constexpr std::size_t kMinCorrectionImages = 25;
 constexpr double kMinFamilyCoverage = 0.5;
 constexpr int kMaxCorrectionDegree = 3;
-// The lab images' cover of the field is judged on its 3 x 3 partition in
-// alpha and beta: 25 uniform draws leave one of those ninths empty about
-// half the time, a spread plan of 25 never.
-constexpr int kCoverageCellsPerSide = 3;
 }  // namespace
 
 int runCalibrateUnit(int argc, char** argv) {
@@ -108,13 +104,7 @@ int runCalibrateUnit(int argc, char** argv) {
     lab_alpha_rad.push_back(s.alpha_rad);
     lab_beta_rad.push_back(s.beta_rad);
   }
-  const FieldCoverage coverage = measureFieldCoverage(sensor, lab_alpha_rad, lab_beta_rad, kCoverageCellsPerSide);
-  if (coverage.emptyCells() > 0)
-    std::cerr << "note: the " << data.samples.size() << " lab images leave " << coverage.emptyCells() << " of "
-              << coverage.counts.size()
-              << " parts of the field of view (its 3 x 3 partition in alpha and beta) without an image; the unit's "
-                 "fit rests there on the rest of the field. Lab points spread over the field cover it (as dss generate "
-                 "--sampling spread draws them)\n";
+  const FieldCoverage coverage = noteLabCoverage(sensor, lab_alpha_rad, lab_beta_rad);
   const UnitCalibrationReport report =
       calibrateUnit(model, data.samples, bags + " (" + std::to_string(data.samples.size()) + " images)", options);
   // What the geometry leaves of a unit (a smooth angle error: 0.0004 ->
