@@ -19,7 +19,6 @@ FieldCoverage measureFieldCoverage(const SensorConfig& config, const std::vector
     throw std::invalid_argument("field coverage: " + std::to_string(alpha_rad.size()) + " alphas for " +
                                 std::to_string(beta_rad.size()) + " betas");
   FieldCoverage coverage;
-  coverage.cells_per_side = cells_per_side;
   coverage.counts.assign(static_cast<std::size_t>(cells_per_side) * cells_per_side, 0);
   const double alpha_max = degToRad(config.fov.alpha_max_deg), beta_max = degToRad(config.fov.beta_max_deg);
   auto cell = [&](double angle, double max) {  // -1: outside the field

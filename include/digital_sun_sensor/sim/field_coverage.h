@@ -11,7 +11,6 @@
 namespace dss {
 
 struct FieldCoverage {
-  int cells_per_side = 0;
   std::vector<int> counts;  // row-major, beta rows by alpha columns; directions outside the field are not counted
 
   int emptyCells() const;
