@@ -14,9 +14,11 @@ Keys:
   train             {arch, epochs, lr, seed, centroid_weighting, feature_corrections,
                     [lattice_phase], [head], [value_saturation]}: dss train options
   calibrate_sigma   {correction_degree: keep|none|D, symmetry: keep|none|flips|dihedral,
-                    [unit_tolerances: K], [nominal_bags: [NAME, ...]]}: K (geometric head) adds
+                    [unit_tolerances: K], [spot_bias_degree: D], [nominal_bags: [NAME, ...]]}: K
+                    (geometric head) adds
                     the error of a unit built to K x typical tolerances to sigma, for a family model
-                    that units are calibrated from; nominal_bags: the sigma bags without anomalies,
+                    that units are calibrated from; D (geometric head): the spot bias's maximum degree,
+                    fitted before the correction; nominal_bags: the sigma bags without anomalies,
                     on which alone the angle correction, sigma and the spot-mismatch level are
                     fitted (default: all); the others widen the input envelope only
   calibrate_height  {changes_um: [H, ...], count, seed} (optional, geometric head): per H, COUNT
@@ -116,7 +118,7 @@ def main():
     check(path, "train", train, ("arch", "epochs", "lr", "seed", "centroid_weighting", "feature_corrections"),
           ("lattice_phase", "head", "value_saturation"))
     sigma = recipe["calibrate_sigma"]
-    check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"), ("unit_tolerances", "nominal_bags"))
+    check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"), ("unit_tolerances", "spot_bias_degree", "nominal_bags"))
     sigma_names = [str(b.get("name")) for b in recipe["bags"]["sigma"] if isinstance(b, dict)]
     nominal_bags = sigma.get("nominal_bags", [])
     if not isinstance(nominal_bags, list) or "nominal_bags" in sigma and not nominal_bags:
@@ -142,6 +144,7 @@ def main():
         "CORRECTION": str(sigma["correction_degree"]),
         "SYMMETRY": str(sigma["symmetry"]),
         "UNIT_TOLERANCES": str(sigma.get("unit_tolerances", "keep")),
+        "SPOT_BIAS": str(sigma.get("spot_bias_degree", "keep")),
         "NOMINAL_BAGS": " ".join(str(n) for n in nominal_bags),
         "BASELINE": str(recipe.get("baseline", "centroid")),
         "HEIGHT_BAGS": height_bags(path, recipe["calibrate_height"], "%s/../sensors/%s.yaml" % (

@@ -13,6 +13,8 @@
 # fits how the angle correction changes with the mask height (calibrate-height);
 # with UNIT_TOLERANCES=K (a family model) adds the error of a unit built to
 # K x typical tolerances to its sigma (calibrate-sigma --unit-tolerances);
+# with SPOT_BIAS=D (geometric head) fits its spot bias before the correction
+# (calibrate-sigma --spot-bias-degree);
 # with NOMINAL_BAGS (the sigma bags without anomalies) fits all of the above
 # on those alone and widens the input envelope to all sigma bags;
 # evaluates it on the test bag, then calibrates the
@@ -48,7 +50,8 @@ train_and_evaluate() {
     fi
     [ -n "${HEIGHT_BAGS:-}" ] && tolerances=keep
     "$DSS" calibrate-sigma --model "$model" "${nominal_data[@]}" --max-images 0 --out "$model" \
-      --correction-degree "$correction" --unit-tolerances "$tolerances" | tee "$DATA/$name.sigma.json"
+      --correction-degree "$correction" --unit-tolerances "$tolerances" --spot-bias-degree "${SPOT_BIAS:-keep}" \
+      | tee "$DATA/$name.sigma.json"
     # Estimates averaged over the sensor's mirror images, and their sigma. (A second step because the shipped
     # models got it after their first calibration; in one step the sigma could come out otherwise.)
     if [ "$symmetry" != keep ]; then

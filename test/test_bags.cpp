@@ -131,6 +131,14 @@ TEST(Generate, BadInputGetsClearErrors) {
     EXPECT_NE(r.output.find("--correction-degree"), std::string::npos) << r.output;
     EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   }
+  // A spot bias of a degree out of range, or for a model without a geometric head.
+  for (const std::string model :
+       {"thesis_sa_family.dssmodel --spot-bias-degree 25", "thesis_sa.dssmodel --spot-bias-degree 2"}) {
+    r = run("calibrate-sigma --model models/" + model + " --data /nonexistent_dir/x.bag --out " + out);
+    EXPECT_EQ(r.code, 2) << r.output;
+    EXPECT_NE(r.output.find("--spot-bias-degree"), std::string::npos) << r.output;
+    EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
+  }
   // And a symmetry that is unknown, or that the model's sensor lacks.
   r = run("calibrate-sigma --model models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --out " + out +
           " --symmetry mirror");
@@ -349,7 +357,16 @@ TEST(CalibrateSigma, KeepingSigmaAndMismatchWidensTheEnvelopeOnly) {
     EXPECT_NE(r.output.find(mode.substr(0, mode.find(' '))), std::string::npos) << r.output;
   }
   EXPECT_FALSE(exists(out));
-  for (const auto& f : {bag, widened}) std::remove(f.c_str());
+  // A spot bias fitted on the same images: recorded, and the model reads them.
+  const std::string biased = tmp("biased.dssmodel"), biased_csv = tmp("biased.csv");
+  r = run("calibrate-sigma --model " + family + " --data " + bag +
+          " --spot-bias-degree 2 --sigma keep --spot-mismatch keep --out " + biased);
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(lastLine(r.output, "{\"command\"").find("\"spot_bias_rms_um_after\""), std::string::npos) << r.output;
+  ASSERT_EQ(run("eval --data " + bag + " --estimator sscnn:" + biased + " --crlb-samples 0 --csv " + biased_csv).code,
+            0);
+  EXPECT_EQ(csvRows(biased_csv).size(), 12u);
+  for (const auto& f : {bag, widened, biased, biased_csv}) std::remove(f.c_str());
 }
 
 // dss train on a small bag writes a model that dss eval runs as sscnn:MODEL;

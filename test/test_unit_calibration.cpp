@@ -4,16 +4,20 @@
 // the design's accuracy; the unit model round-trips and is refused for
 // another design; the spot-mismatch flag fires on the uncalibrated unit and
 // stays quiet on the design and on the calibrated unit; the angle correction
-// follows the unit's mask height.
+// follows the unit's mask height; a spot bias keeps a unit fit of the design
+// where it is.
 #include <gtest/gtest.h>
+#include <torch/torch.h>
 
 #include <cmath>
 #include <cstdio>
 
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/model/geometric_head.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/spot_bias.h"
 #include "digital_sun_sensor/model/unit_calibration.h"
 #include "digital_sun_sensor/model/unit_recalibration.h"
 #include "digital_sun_sensor/sim/geometry.h"
@@ -330,6 +334,124 @@ TEST(UnitCalibration, HeightCorrectionsInterpolateBetweenTheirHeights) {
   EXPECT_NEAR(alpha_change(30.0), 2e-3, 1e-15);     // along +10 .. +20 beyond
   EXPECT_NEAR(alpha_change(-10.0), 2e-4, 1e-15);    // the other side's own
   EXPECT_NEAR(UnitAngleCorrection(design, entries, 15.0).bias(0, 0)[1], -1.25e-3, 1e-15);
+}
+
+// Spots read off their ray trace's by a bias of each aperture class (here
+// as much as a tenth of a micrometre, a smooth function of the angles): the
+// solve takes their mean into its angles; without a model of each class's
+// departure from it, a unit fit of the design itself takes that departure
+// into the apertures; with the fitted spot bias it moves nothing, and the
+// solve reads the angles its corrections take to the truth.
+TEST(SpotBias, IsFittedAndKeepsAUnitFitOfTheDesignWhereItIs) {
+  RandomMaskOptions mask;
+  mask.apertures = 5;
+  mask.diameter_spread = 0.3;  // five sizes: five classes
+  const SensorConfig design = drawRandomMask(drawnDesign(41), mask, 43).config;
+  Model with_bias = untrainedModel(design), without = untrainedModel(design);
+  const auto& geometry = *with_bias.net->geometry();
+  const int groups = geometry.groups();
+  const double scale = with_bias.meta.angle_scale_rad;
+  std::vector<double> flux(static_cast<std::size_t>(groups), 0.0);
+  for (int k = 0; k < geometry.apertures(); ++k)
+    flux[static_cast<std::size_t>(geometry.aperture_group[k].item<std::int64_t>())] +=
+        geometry.aperture_flux[k].item<double>();
+  const std::vector<int> classes = spotBiasClasses(flux);
+  auto knownBias = [&](int g, double alpha, double beta) {
+    const double c = 1.0 + classes[static_cast<std::size_t>(g)];
+    const double a = alpha / scale, b = beta / scale;
+    return Eigen::Vector2d(0.02 * c + 0.05 * a - 0.03 * c * a * b, -0.01 * c + 0.04 * c * b * b);
+  };
+  // Images of clusters of sites about each biased spot whose weighted centroid is the spot.
+  Rng rng(5);
+  std::vector<UnitImage> images;
+  const double pitch = with_bias.meta.arch.detector_pitch_um;
+  std::size_t spot_count = 0;
+  for (int tries = 0; tries < 400 && images.size() < 80; ++tries) {
+    UnitImage image;
+    image.alpha_rad = degToRad(rng.uniform(-5.5, 5.5));
+    image.beta_rad = degToRad(rng.uniform(-5.5, 5.5));
+    const auto spots =
+        geometry.groupSpotsUm(torch::tensor({image.alpha_rad, image.beta_rad}, torch::kDouble).view({1, 2}));
+    int whole = 0;
+    for (int g = 0; g < groups; ++g) {
+      const Eigen::Vector2d centre = Eigen::Vector2d(spots[0][g][0].item<double>(), spots[0][g][1].item<double>()) +
+                                     knownBias(g, image.alpha_rad, image.beta_rad);
+      if (std::abs(centre.x()) > 0.5 * pitch * (with_bias.meta.arch.detector_width_px - 10) ||
+          std::abs(centre.y()) > 0.5 * pitch * (with_bias.meta.arch.detector_height_px - 10))
+        continue;
+      ++whole;
+      for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy) {
+          image.site_um.push_back(centre + pitch * Eigen::Vector2d(dx, dy));
+          image.site_weight.push_back(1.0 / (1.0 + dx * dx + dy * dy));
+        }
+    }
+    if (whole < 3) continue;
+    spot_count += static_cast<std::size_t>(whole);
+    images.push_back(std::move(image));
+  }
+  ASSERT_EQ(images.size(), 80u);
+
+  const SpotBiasFit fit = fitSpotBias(with_bias, images, 4);
+  std::printf("spot bias: degree %d, %zu classes, %zu spots, RMS %.4f -> %.2g um\n", fit.bias.degree,
+              fit.bias.x_um.size(), fit.spots, fit.rms_before_um, fit.rms_after_um);
+  EXPECT_EQ(fit.spots, spot_count);
+  EXPECT_EQ(fit.bias.x_um.size(), 5u);
+  EXPECT_GT(fit.rms_before_um, 0.005);
+  EXPECT_LT(fit.rms_after_um, 1e-3 * fit.rms_before_um);
+  setSpotBias(with_bias, fit.bias);
+
+  // The solve reads the angles from which the model's corrections give the
+  // truth; without the bias, those less the bias's mean over the spots.
+  const std::vector<Eigen::Vector2d> targets = uncorrectedAngles(with_bias, images);
+  GeometricSolveOptions options;
+  options.gate_um = with_bias.meta.arch.geometric_gate_um;
+  options.pitch_um = pitch;
+  options.width_px = with_bias.meta.arch.detector_width_px;
+  options.height_px = with_bias.meta.arch.detector_height_px;
+  auto solved = [&](const Model& model, const UnitImage& image) {
+    std::vector<double> xy;
+    for (const auto& s : image.site_um) xy.insert(xy.end(), {s.x(), s.y()});
+    const auto n = static_cast<std::int64_t>(image.site_um.size());
+    const auto solution =
+        solveGeometry(*model.net->geometry(), torch::tensor(xy, torch::kDouble).view({n, 2}),
+                      torch::tensor(image.site_weight, torch::kDouble), torch::zeros({n}, torch::kLong), 1,
+                      torch::tensor({image.alpha_rad, image.beta_rad}, torch::kDouble).view({1, 2}), options);
+    return Eigen::Vector2d(solution.angles_rad[0][0].item<double>(), solution.angles_rad[0][1].item<double>());
+  };
+  for (std::size_t i = 0; i < images.size(); i += 20) {
+    EXPECT_LT((solved(with_bias, images[i]) - targets[i]).norm(), 1e-8) << "image " << i;
+    EXPECT_GT((solved(without, images[i]) - targets[i]).norm(), 1e-6) << "image " << i;
+  }
+
+  // A unit fit of the design on these images: the bias known, nothing moves.
+  const MaskGeometry design_mask = geometry.maskGeometry();
+  auto apertureShiftRmsUm = [&](const Model& model) {
+    const MaskGeometry m = model.net->geometry()->maskGeometry();
+    double sum = 0.0;
+    for (std::size_t k = 0; k < m.apertures_um.size(); ++k)
+      sum += (m.apertures_um[k] - design_mask.apertures_um[k]).squaredNorm();
+    return std::sqrt(sum / static_cast<double>(m.apertures_um.size()));
+  };
+  fitUnitGeometry(with_bias, images);
+  fitUnitGeometry(without, images);
+  std::printf("unit fit of the design: apertures moved %.2g um RMS with the spot bias, %.4f um without\n",
+              apertureShiftRmsUm(with_bias), apertureShiftRmsUm(without));
+  EXPECT_LT(apertureShiftRmsUm(with_bias), 1e-4);
+  EXPECT_GT(apertureShiftRmsUm(without), 0.005);
+
+  // The model file keeps it; a bias for another head is refused.
+  const std::string path = ::testing::TempDir() + "/spot_bias.dssmodel";
+  saveModel(with_bias, path);
+  const Model loaded = loadModel(path, &design);
+  EXPECT_EQ(loaded.meta.spot_bias.degree, fit.bias.degree);
+  EXPECT_EQ(loaded.meta.spot_bias.group_class, fit.bias.group_class);
+  EXPECT_EQ(loaded.meta.spot_bias.x_um, fit.bias.x_um);
+  EXPECT_EQ(loaded.net->geometry()->spotBias().y_um, fit.bias.y_um);
+  std::remove(path.c_str());
+  SpotBias wrong = fit.bias;
+  wrong.group_class.push_back(0);
+  EXPECT_THROW(setSpotBias(with_bias, wrong), std::invalid_argument);
 }
 
 TEST(UnitCalibration, RefusesAModelWithoutAGeometricHead) {

@@ -3,8 +3,8 @@
 // correction (src/train/bias_calibration), then refits the level of its
 // predicted uncertainty (src/train/sigma_calibration), records their input
 // envelope (model/input_envelope) and, for a geometric head, its spot-mismatch
-// level and optionally the unit tolerances' sigma (model/unit_calibration),
-// and writes the model.
+// level and optionally the unit tolerances' sigma (model/unit_calibration)
+// and its spot bias (model/spot_bias), and writes the model.
 #include <algorithm>
 #include <cmath>
 #include <iostream>
@@ -15,6 +15,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/input_envelope.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/spot_bias.h"
 #include "digital_sun_sensor/model/unit_calibration.h"
 #include "digital_sun_sensor/ros/dataset_source.h"
 #include "digital_sun_sensor/sparse/threads.h"
@@ -49,6 +50,13 @@ int runCalibrateSigma(int argc, char** argv) {
            "average the estimates over the sensor's mirror images: 'keep' the model's, 'none', 'flips' (4 images) or "
            "'dihedral' (8; square detectors); the sensor must have the symmetry",
            "keep", false, false},
+          {"spot-bias-degree", "D",
+           "geometric head: refit where the network reads each aperture class's whole spot off the ray trace "
+           "(apertures of equal flux; a smooth function of the sun angles of degree at most D, 0.." +
+               std::to_string(AngleCorrection::kMaxDegree) +
+               ", chosen by two-fold cross-validation on these design images: each class's departure from the spots' "
+               "mean, which the angle correction keeps) before the correction; 'keep' the model's, 'none' to drop it",
+           "keep", false, false},
           {"unit-tolerances", "SCALE",
            "geometric head: add to every estimate's sigma the error the design's geometry makes on a unit built to "
            "SCALE x typical tolerances (1: 20 um height, 10 um offset, 0.2 deg rotation, 0.1 deg tilt, 1 um per "
@@ -80,6 +88,14 @@ int runCalibrateSigma(int argc, char** argv) {
       throw UsageError("dss calibrate-sigma: --correction-degree must be keep, none or 0.." +
                        std::to_string(AngleCorrection::kMaxDegree) + ", not " + correction);
   }
+  std::optional<int> spot_bias_degree;  // none: keep the model's spot bias
+  if (args.get("spot-bias-degree") != "keep") {
+    spot_bias_degree = args.get("spot-bias-degree") == "none" ? AngleCorrection::kNone
+                                                              : static_cast<int>(args.getInt("spot-bias-degree"));
+    if (*spot_bias_degree < AngleCorrection::kNone || *spot_bias_degree > AngleCorrection::kMaxDegree)
+      throw UsageError("dss calibrate-sigma: --spot-bias-degree must be keep, none or 0.." +
+                       std::to_string(AngleCorrection::kMaxDegree) + ", not " + args.get("spot-bias-degree"));
+  }
   std::optional<InferenceSymmetry> symmetry;  // none: keep the model's
   if (args.get("symmetry") != "keep") {
     try {
@@ -97,9 +113,10 @@ int runCalibrateSigma(int argc, char** argv) {
   }
   sparse::configureThreads(1, 2);
   Model model = loadModel(args.get("model"));
-  if (unit_tolerances && !model.meta.arch.geometric_head)
-    throw UsageError("dss calibrate-sigma: --unit-tolerances needs a model with a geometric head (" +
-                     args.get("model") + " has none)");
+  for (const char* option : {"unit-tolerances", "spot-bias-degree"})
+    if (args.get(option) != "keep" && !model.meta.arch.geometric_head)
+      throw UsageError(std::string("dss calibrate-sigma: --") + option + " needs a model with a geometric head (" +
+                       args.get("model") + " has none)");
   const SensorConfig sensor = parseSensorConfig(model.meta.sensor_yaml, args.get("model") + " (sensor)");
   if (symmetry && *symmetry != InferenceSymmetry::kNone && model.meta.arch.geometric_head)
     throw UsageError("dss calibrate-sigma: --symmetry " + args.get("symmetry") +
@@ -121,6 +138,18 @@ int runCalibrateSigma(int argc, char** argv) {
       covering(inputEnvelopeOf(model.meta), measureInputEnvelope(data.samples.siteCounts(model.meta.input.max_sites)));
   const std::size_t n = std::min<std::size_t>(max_images ? max_images : data.samples.size(), data.samples.size());
   // The model's predictions on the images, once per fit: minutes for a large model.
+  std::optional<SpotBiasFit> spot_bias;
+  if (spot_bias_degree) {
+    setSpotBias(model, SpotBias{});
+    if (*spot_bias_degree != AngleCorrection::kNone) {
+      std::cerr << "calibrate-sigma: spot bias on " << n << " images\n";
+      spot_bias = fitSpotBias(model, readUnitImages(model, data.samples, n), *spot_bias_degree);
+      setSpotBias(model, spot_bias->bias);
+      std::cerr << "spot bias: degree " << spot_bias->bias.degree << " over " << spot_bias->bias.x_um.size()
+                << " aperture classes, " << spot_bias->spots << " whole spots, RMS " << spot_bias->rms_before_um
+                << " -> " << spot_bias->rms_after_um << " um\n";
+    }
+  }
   std::optional<BiasCalibration> bias;
   if (max_degree) {
     Progress bar("calibrate-sigma: correction", n);
@@ -170,6 +199,15 @@ int runCalibrateSigma(int argc, char** argv) {
               << ", \"constant_sigma_beta_deg\": " << radToDeg(c->constant_sigma_beta_rad);
   else
     std::cout << ", \"sigma_mode\": \"kept\"";
+  if (model.meta.arch.geometric_head) std::cout << ", \"spot_bias_degree\": " << model.meta.spot_bias.degree;
+  if (spot_bias) {
+    std::cout << ", \"spot_bias_spots\": " << spot_bias->spots
+              << ", \"spot_bias_rms_um_before\": " << spot_bias->rms_before_um
+              << ", \"spot_bias_rms_um_after\": " << spot_bias->rms_after_um << ", \"spot_bias_cv_rms_um\": [";
+    for (std::size_t k = 0; k < spot_bias->cross_validated_rms_um.size(); ++k)
+      std::cout << (k ? ", " : "") << spot_bias->cross_validated_rms_um[k];
+    std::cout << "]";
+  }
   std::cout << ", \"correction_degree\": " << model.meta.angle_correction.degree << ", \"inference_symmetry\": \""
             << inferenceSymmetryName(model.meta.inference_symmetry) << "\"";
   if (bias) {

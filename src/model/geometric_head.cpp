@@ -2,6 +2,7 @@
 
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <stdexcept>
 #include <string>
 
@@ -122,12 +123,28 @@ torch::Tensor SensorGeometryImpl::spotsUm(const torch::Tensor& angles_rad) const
 }
 
 torch::Tensor SensorGeometryImpl::groupSpotsUm(const torch::Tensor& angles_rad) const {
-  const auto spots = spotsUm(angles_rad);
-  if (group_count_ == apertures()) return spots;
-  const auto flux = aperture_flux.view({1, -1, 1});
-  const auto sum = torch::zeros({group_count_}, kDouble).index_add(0, aperture_group, aperture_flux);
-  return torch::zeros({spots.size(0), group_count_, 2}, kDouble).index_add(1, aperture_group, spots * flux) /
-         sum.view({1, -1, 1});
+  auto spots = spotsUm(angles_rad);
+  if (group_count_ != apertures()) {
+    const auto flux = aperture_flux.view({1, -1, 1});
+    const auto sum = torch::zeros({group_count_}, kDouble).index_add(0, aperture_group, aperture_flux);
+    spots = torch::zeros({spots.size(0), group_count_, 2}, kDouble).index_add(1, aperture_group, spots * flux) /
+            sum.view({1, -1, 1});
+  }
+  if (!spot_bias_.active()) return spots;
+  const auto angles = angles_rad.detach().to(torch::kFloat64).contiguous();
+  const auto a = angles.accessor<double, 2>();
+  auto bias = torch::zeros({angles.size(0), group_count_, 2}, kDouble);
+  auto b = bias.accessor<double, 3>();
+  std::vector<Eigen::Vector2d> per_group(static_cast<std::size_t>(group_count_));
+  for (std::int64_t i = 0; i < angles.size(0); ++i) {
+    std::fill(per_group.begin(), per_group.end(), Eigen::Vector2d::Zero());
+    spot_bias_.addTo(Eigen::Vector2d(a[i][0], a[i][1]), per_group);
+    for (std::int64_t g = 0; g < group_count_; ++g) {
+      b[i][g][0] = per_group[static_cast<std::size_t>(g)].x();
+      b[i][g][1] = per_group[static_cast<std::size_t>(g)].y();
+    }
+  }
+  return spots + bias;
 }
 
 MaskGeometry SensorGeometryImpl::maskGeometry() const {
@@ -196,6 +213,11 @@ void SensorGeometryImpl::setPositionVariance(const std::vector<double>& aperture
   group_variance_ = std::move(variance);
 }
 
+void SensorGeometryImpl::setSpotBias(const SpotBias& bias) {
+  bias.validate(groups());
+  spot_bias_ = bias;
+}
+
 geometric::Design geometric::designOf(const SensorGeometryImpl& geometry) {
   geometric::Design d;
   d.mask = geometry.maskGeometry();
@@ -206,6 +228,7 @@ geometric::Design geometric::designOf(const SensorGeometryImpl& geometry) {
     d.flux.push_back(flux[k].item<double>());
   }
   d.groups = geometry.groups();
+  d.spot_bias = geometry.spotBias();
   return d;
 }
 

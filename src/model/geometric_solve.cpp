@@ -243,17 +243,20 @@ Eigen::Vector2d placeGroup(const Design& design, int g, const Eigen::Vector2d& t
 }  // namespace
 
 std::vector<Eigen::Vector2d> groupSpots(const Design& design, const Eigen::Vector2d& angles_rad) {
-  const auto spots = apertureSpots(design, angles_rad);
-  if (design.groups == design.mask.numApertures()) return spots;
-  std::vector<Eigen::Vector2d> sum(static_cast<std::size_t>(design.groups), Eigen::Vector2d::Zero());
-  std::vector<double> flux(sum.size(), 0.0);
-  for (std::size_t k = 0; k < spots.size(); ++k) {
-    const auto g = static_cast<std::size_t>(design.group[k]);
-    sum[g] += design.flux[k] * spots[k];
-    flux[g] += design.flux[k];
+  auto spots = apertureSpots(design, angles_rad);
+  if (design.groups != design.mask.numApertures()) {
+    std::vector<Eigen::Vector2d> sum(static_cast<std::size_t>(design.groups), Eigen::Vector2d::Zero());
+    std::vector<double> flux(sum.size(), 0.0);
+    for (std::size_t k = 0; k < spots.size(); ++k) {
+      const auto g = static_cast<std::size_t>(design.group[k]);
+      sum[g] += design.flux[k] * spots[k];
+      flux[g] += design.flux[k];
+    }
+    for (std::size_t g = 0; g < sum.size(); ++g) sum[g] /= flux[g];
+    spots = std::move(sum);
   }
-  for (std::size_t g = 0; g < sum.size(); ++g) sum[g] /= flux[g];
-  return sum;
+  design.spot_bias.addTo(angles_rad, spots);
+  return spots;
 }
 
 ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& reference_rad,

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
+#include "digital_sun_sensor/model/spot_bias.h"
 
 namespace dss {
 class SensorGeometryImpl;
@@ -20,6 +21,7 @@ struct Design {
   std::vector<int> group;    // per aperture
   std::vector<double> flux;  // per aperture
   int groups = 1;
+  SpotBias spot_bias;  // added to the group spots (SensorGeometryImpl::spotBias)
 };
 
 // The geometric head's geometry tensors as the plain solve takes them
@@ -83,7 +85,8 @@ Reading readSpots(const Design& design, const std::vector<Site>& sites, const Ei
 // options' group variance v; whole spots only where the image has one.
 std::vector<double> solveWeights(const Reading& r, const Options& options);
 
-// Spots of every group [um] for the angles (far away where no ray reaches).
+// Spots of every group [um] for the angles (far away where no ray reaches),
+// the design's spot bias added.
 std::vector<Eigen::Vector2d> groupSpots(const Design& design, const Eigen::Vector2d& angles_rad);
 
 ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& reference_rad,

@@ -296,6 +296,18 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "spot_noise_um2" << YAML::Value << m.spot_noise_um2;
     e << YAML::EndMap;
   }
+  if (m.spot_bias.active()) {
+    e << YAML::Key << "spot_bias" << YAML::Value << YAML::BeginMap;
+    e << YAML::Key << "degree" << YAML::Value << m.spot_bias.degree;
+    e << YAML::Key << "angle_scale_rad" << YAML::Value << m.spot_bias.angle_scale_rad;
+    e << YAML::Key << "group_class" << YAML::Value << YAML::Flow << m.spot_bias.group_class;
+    for (const auto& [key, axis] : {std::pair{"x_um", &m.spot_bias.x_um}, std::pair{"y_um", &m.spot_bias.y_um}}) {
+      e << YAML::Key << key << YAML::Value << YAML::BeginSeq;
+      for (const auto& c : *axis) e << YAML::Flow << c;
+      e << YAML::EndSeq;
+    }
+    e << YAML::EndMap;
+  }
   e << YAML::Key << "sensor_name" << YAML::Value << m.sensor_name;
   if (m.unit_yaml != "{}") e << YAML::Key << "unit" << YAML::Value << mapFromText(m.unit_yaml, "unit calibration");
   e << YAML::Key << "training" << YAML::Value << mapFromText(m.training_yaml, "training summary");
@@ -490,6 +502,17 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     if (!finite || !(m.spot_noise_um2 > 0.0) || !std::isfinite(m.spot_noise_um2))
       throw ModelError(origin + ": metadata key 'aperture_position' needs finite non-negative variances and a " +
                        "positive spot_noise_um2");
+  }
+  if (const YAML::Node bias = root["spot_bias"]) {  // absent: none
+    const std::string at = "spot_bias.";
+    if (!bias.IsMap() || !m.arch.geometric_head)
+      throw ModelError(origin + ": metadata key 'spot_bias' must be a map, in a model with a geometric head");
+    m.spot_bias.degree = get<int>(bias, "degree", origin, at);
+    m.spot_bias.angle_scale_rad = get<double>(bias, "angle_scale_rad", origin, at);
+    m.spot_bias.group_class = get<std::vector<int>>(bias, "group_class", origin, at);
+    m.spot_bias.x_um = get<std::vector<std::vector<double>>>(bias, "x_um", origin, at);
+    m.spot_bias.y_um = get<std::vector<std::vector<double>>>(bias, "y_um", origin, at);
+    if (!m.spot_bias.active()) throw ModelError(origin + ": metadata key 'spot_bias.degree' must be 0 or more");
   }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");
   if (const YAML::Node unit = root["unit"]) {  // absent: the nominal design

@@ -98,6 +98,11 @@ Model deserializeModel(const std::string& bytes, const std::string& origin, cons
     } catch (const std::invalid_argument& e) {
       throw ModelError(origin + ": metadata key 'aperture_position': " + e.what());
     }
+    try {
+      m.net->geometry()->setSpotBias(m.meta.spot_bias);
+    } catch (const std::invalid_argument& e) {
+      throw ModelError(origin + ": metadata key 'spot_bias': " + e.what());
+    }
   }
   if (m.meta.arch.pattern_head) {
     try {

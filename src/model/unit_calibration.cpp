@@ -154,10 +154,6 @@ std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector
   return out;
 }
 
-std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector<UnitImage>& images) {
-  return solvedTargets(model, images, model.net->geometry()->maskGeometry());
-}
-
 geometric::Options solveOptions(const Model& model) {
   geometric::Options o;
   o.gate_um = model.meta.arch.geometric_gate_um;
@@ -186,6 +182,9 @@ std::vector<GeometryObservation> observe(const geometric::Design& design, const 
       sites.push_back({images[i].site_um[k], images[i].site_weight[k]});
     const geometric::Reading r = geometric::readSpots(design, sites, targets[i], options.gate_um, options);
     const std::vector<double> w = geometric::solveWeights(r, options);
+    // The geometry fitted predicts the ray trace's spots: the bias comes off the readings.
+    std::vector<Eigen::Vector2d> bias(w.size(), Eigen::Vector2d::Zero());
+    design.spot_bias.addTo(targets[i], bias);
     for (std::size_t g = 0; g < w.size(); ++g) {
       if (!(w[g] > 0.0) || r.cut[g]) continue;
       GeometryObservation o;
@@ -193,7 +192,7 @@ std::vector<GeometryObservation> observe(const geometric::Design& design, const 
       o.sun = sunVectorFromAngles(targets[i].x(), targets[i].y());
       o.apertures = members[g];
       if (members[g].size() > 1) o.fluxes = fluxes[g];
-      o.measured_px = r.centroid[g];
+      o.measured_px = r.centroid[g] - bias[g];
       o.weight = w[g] / weight_unit;
       out.push_back(std::move(o));
     }
@@ -297,6 +296,10 @@ double angleRmsDeg(const std::vector<ImageRead>& reads) {
 
 }  // namespace
 
+std::vector<Eigen::Vector2d> uncorrectedAngles(const Model& model, const std::vector<UnitImage>& images) {
+  return solvedTargets(model, images, model.net->geometry()->maskGeometry());
+}
+
 std::string UnitCalibrationReport::toYaml() const {
   YAML::Emitter out;
   out.SetDoublePrecision(6);  // a record for people: residuals and changes, not values read back
@@ -338,7 +341,7 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   SensorGeometryImpl& geometry = *model.net->geometry();
   UnitCalibrationReport report;
   report.images = static_cast<int>(images.size());
-  std::vector<Eigen::Vector2d> targets = solvedTargets(model, images);
+  std::vector<Eigen::Vector2d> targets = uncorrectedAngles(model, images);
   const geometric::Options solve = solveOptions(model);
   const geometric::Design design = geometric::designOf(geometry);
   report.before = design.mask;
@@ -451,7 +454,7 @@ std::array<double, 2> unitToleranceSigma(const Model& model, const TrainingSet& 
       a += tolerances.aperture_position_sigma_um * Eigen::Vector2d(rng.normal(), rng.normal());
     return unit;
   };
-  return solveChangeRms(design, images, solvedTargets(model, images), solveOptions(model), draw, 1.0);
+  return solveChangeRms(design, images, uncorrectedAngles(model, images), solveOptions(model), draw, 1.0);
 }
 
 std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::Mat>& images,

@@ -15,6 +15,7 @@
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/model/geometry_design.h"
+#include "digital_sun_sensor/model/spot_bias.h"
 
 namespace dss {
 
@@ -36,7 +37,8 @@ class SensorGeometryImpl : public torch::nn::Module {
   // exact Snell refraction in the glass. Differentiable in the angles and in
   // every geometry tensor.
   torch::Tensor spotsUm(const torch::Tensor& angles_rad) const;
-  // The same per group [B, G, 2].
+  // The same per group [B, G, 2], with the spot bias added (a constant of
+  // the angles' values: no gradient flows through it).
   torch::Tensor groupSpotsUm(const torch::Tensor& angles_rad) const;
   // The geometry in the baseline's terms (a pixel pitch of 1 um, so that its
   // spots are in um), and back: height, offset, rotation, tilt and aperture
@@ -59,6 +61,12 @@ class SensorGeometryImpl : public torch::nn::Module {
   void setPositionVariance(const std::vector<double>& aperture_variance_um2, double spot_noise_um2);
   const std::vector<double>& groupPositionVariance() const { return group_variance_; }
 
+  // Where the network reads each group's whole spot off the ray trace's
+  // (ModelMetadata::spot_bias); inactive: nowhere. Throws
+  // std::invalid_argument as SpotBias::validate.
+  void setSpotBias(const SpotBias& bias);
+  const SpotBias& spotBias() const { return spot_bias_; }
+
   torch::Tensor height_um;           // [1]
   torch::Tensor offset_um;           // [2] lateral offset of the mask
   torch::Tensor rotation_rad;        // [1] about the boresight
@@ -74,6 +82,7 @@ class SensorGeometryImpl : public torch::nn::Module {
   double air_above_exit_um_ = 0.0;
   std::optional<double> design_height_um_;
   std::vector<double> group_variance_;  // per group, in units of the spot noise per unit weight
+  SpotBias spot_bias_;
 };
 TORCH_MODULE(SensorGeometry);
 

@@ -11,6 +11,7 @@
 #include "digital_sun_sensor/model/angle_correction.h"
 #include "digital_sun_sensor/model/arch.h"
 #include "digital_sun_sensor/model/input_spec.h"
+#include "digital_sun_sensor/model/spot_bias.h"
 #include "digital_sun_sensor/model/symmetry.h"
 
 namespace dss {
@@ -55,6 +56,10 @@ struct ModelMetadata {
   // (SensorGeometryImpl::setPositionVariance). Empty: positions exact.
   std::vector<double> aperture_variance_um2;
   double spot_noise_um2 = 0.0;
+  // Geometric head: where the network reads a whole spot off the ray
+  // trace's, per aperture class and sun angle (dss calibrate-sigma
+  // --spot-bias-degree, on the design's images); inactive: nowhere.
+  SpotBias spot_bias;
   // YAML map: the unit calibration the geometry holds (dss calibrate-unit:
   // data, images, residuals, fitted parameters); "{}": the nominal design.
   std::string unit_yaml = "{}";

@@ -97,6 +97,12 @@ std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::
 std::vector<UnitImage> readUnitImages(const Model& model, const TrainingSet& data, std::size_t max_samples,
                                       std::vector<std::array<double, 2>>* estimates = nullptr);
 
+// Per image the solve's angles [rad] from which the head's learned
+// correction and the model's angle correction (at its geometry's mask
+// height) give the image's reference angles: where its spots are compared
+// with the geometry's.
+std::vector<Eigen::Vector2d> uncorrectedAngles(const Model& model, const std::vector<UnitImage>& images);
+
 // Fits the model's geometry, from its current values, to these images, and
 // sets the model's geometry sigma from the fit (the report without the
 // angle errors). Throws std::invalid_argument
