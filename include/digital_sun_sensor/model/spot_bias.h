@@ -49,9 +49,9 @@ std::vector<int> spotBiasClasses(const std::vector<double>& group_flux);
 struct SpotBiasFit {
   SpotBias bias;
   std::size_t spots = 0;  // whole spots fitted
-  // Weighted RMS [um] of the spots' offsets from the geometry's at the true
-  // angles, without the bias and with it; per degree 0..max, the two-fold
-  // cross-validated RMS the degree was chosen by.
+  // Weighted RMS [um] of the spots' offsets from the ray trace's at the
+  // uncorrected angles, without the bias and with it; per degree 0..max,
+  // the two-fold cross-validated RMS the degree was chosen by.
   double rms_before_um = 0.0, rms_after_um = 0.0;
   std::vector<double> cross_validated_rms_um;
 };
