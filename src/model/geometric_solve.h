@@ -12,7 +12,8 @@
 
 namespace dss {
 class SensorGeometryImpl;
-}
+struct Model;
+}  // namespace dss
 
 namespace dss::geometric {
 
@@ -39,6 +40,10 @@ struct Options {
   // groupPositionVariance); empty: none.
   std::vector<double> group_variance;
 };
+
+// The detector and gate of a geometric-head model, as its solve takes them
+// (model/unit_calibration.cpp).
+Options solveOptions(const Model& model);
 
 struct Site {
   Eigen::Vector2d um;

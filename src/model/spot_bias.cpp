@@ -109,11 +109,7 @@ SpotBiasFit fitSpotBias(const Model& model, const std::vector<UnitImage>& images
                                 std::to_string(AngleCorrection::kMaxDegree));
   geometric::Design design = geometric::designOf(*model.net->geometry());
   design.spot_bias = SpotBias{};  // the readings against the ray trace alone
-  geometric::Options options;
-  options.gate_um = model.meta.arch.geometric_gate_um;
-  options.pitch_um = model.meta.arch.detector_pitch_um;
-  options.width_px = model.meta.arch.detector_width_px;
-  options.height_px = model.meta.arch.detector_height_px;
+  const geometric::Options options = geometric::solveOptions(model);
   std::vector<double> group_flux(static_cast<std::size_t>(design.groups), 0.0);
   for (std::size_t k = 0; k < design.group.size(); ++k)
     group_flux[static_cast<std::size_t>(design.group[k])] += design.flux[k];

@@ -154,15 +154,6 @@ std::vector<Eigen::Vector2d> solvedTargets(const Model& model, const std::vector
   return out;
 }
 
-geometric::Options solveOptions(const Model& model) {
-  geometric::Options o;
-  o.gate_um = model.meta.arch.geometric_gate_um;
-  o.pitch_um = model.meta.arch.detector_pitch_um;
-  o.width_px = model.meta.arch.detector_width_px;
-  o.height_px = model.meta.arch.detector_height_px;
-  return o;
-}
-
 // The whole spots each image shows at its target angles through `design`,
 // weighted as the solve weighs them (relative to `weight_unit`).
 std::vector<GeometryObservation> observe(const geometric::Design& design, const std::vector<UnitImage>& images,
@@ -296,6 +287,15 @@ double angleRmsDeg(const std::vector<ImageRead>& reads) {
 
 }  // namespace
 
+geometric::Options geometric::solveOptions(const Model& model) {
+  geometric::Options o;
+  o.gate_um = model.meta.arch.geometric_gate_um;
+  o.pitch_um = model.meta.arch.detector_pitch_um;
+  o.width_px = model.meta.arch.detector_width_px;
+  o.height_px = model.meta.arch.detector_height_px;
+  return o;
+}
+
 std::vector<Eigen::Vector2d> uncorrectedAngles(const Model& model, const std::vector<UnitImage>& images) {
   return solvedTargets(model, images, model.net->geometry()->maskGeometry());
 }
@@ -342,7 +342,7 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   UnitCalibrationReport report;
   report.images = static_cast<int>(images.size());
   std::vector<Eigen::Vector2d> targets = uncorrectedAngles(model, images);
-  const geometric::Options solve = solveOptions(model);
+  const geometric::Options solve = geometric::solveOptions(model);
   const geometric::Design design = geometric::designOf(geometry);
   report.before = design.mask;
 
@@ -454,7 +454,7 @@ std::array<double, 2> unitToleranceSigma(const Model& model, const TrainingSet& 
       a += tolerances.aperture_position_sigma_um * Eigen::Vector2d(rng.normal(), rng.normal());
     return unit;
   };
-  return solveChangeRms(design, images, uncorrectedAngles(model, images), solveOptions(model), draw, 1.0);
+  return solveChangeRms(design, images, uncorrectedAngles(model, images), geometric::solveOptions(model), draw, 1.0);
 }
 
 std::vector<UnitImage> readUnitImages(const Model& model, const std::vector<cv::Mat>& images,
