@@ -18,7 +18,7 @@ Keys:
                     (geometric head) adds
                     the error of a unit built to K x typical tolerances to sigma, for a family model
                     that units are calibrated from; D (geometric head): the spot bias's maximum degree,
-                    fitted before the correction; nominal_bags: the sigma bags without anomalies,
+                    fitted after the correction (and its change per calibrate_height entry); nominal_bags: the sigma bags without anomalies,
                     on which alone the angle correction, sigma and the spot-mismatch level are
                     fitted (default: all); the others widen the input envelope only
   calibrate_height  {changes_um: [H, ...], count, seed} (optional, geometric head): per H, COUNT

@@ -13,8 +13,9 @@
 # fits how the angle correction changes with the mask height (calibrate-height);
 # with UNIT_TOLERANCES=K (a family model) adds the error of a unit built to
 # K x typical tolerances to its sigma (calibrate-sigma --unit-tolerances);
-# with SPOT_BIAS=D (geometric head) fits its spot bias before the correction
-# (calibrate-sigma --spot-bias-degree);
+# with SPOT_BIAS=D (geometric head) fits its spot bias after the correction
+# (calibrate-sigma --spot-bias-degree, at the angles the correction takes to the
+# truth) and its change at each height entry (calibrate-height --spot-bias-degree);
 # with NOMINAL_BAGS (the sigma bags without anomalies) fits all of the above
 # on those alone and widens the input envelope to all sigma bags;
 # evaluates it on the test bag, then calibrates the
@@ -50,18 +51,22 @@ train_and_evaluate() {
     fi
     [ -n "${HEIGHT_BAGS:-}" ] && tolerances=keep
     "$DSS" calibrate-sigma --model "$model" "${nominal_data[@]}" --max-images 0 --out "$model" \
-      --correction-degree "$correction" --unit-tolerances "$tolerances" --spot-bias-degree "${SPOT_BIAS:-keep}" \
-      | tee "$DATA/$name.sigma.json"
+      --correction-degree "$correction" --unit-tolerances "$tolerances" | tee "$DATA/$name.sigma.json"
+    if [ "${SPOT_BIAS:-keep}" != keep ]; then
+      "$DSS" calibrate-sigma --model "$model" "${nominal_data[@]}" --max-images 0 --out "$model" \
+        --spot-bias-degree "$SPOT_BIAS" --sigma keep --spot-mismatch keep | tee "$DATA/$name.spot_bias.json"
+    fi
     # Estimates averaged over the sensor's mirror images, and their sigma. (A second step because the shipped
     # models got it after their first calibration; in one step the sigma could come out otherwise.)
     if [ "$symmetry" != keep ]; then
       "$DSS" calibrate-sigma --model "$model" "${nominal_data[@]}" --max-images 0 --out "$model" \
         --symmetry "$symmetry" | tee "$DATA/$name.symmetry.json"
     fi
-    local entry
+    local entry height_bias="${SPOT_BIAS:-keep}"
+    [ "$height_bias" = keep ] && height_bias=none
     for entry in ${HEIGHT_BAGS:-}; do
       "$DSS" calibrate-height --model "$model" --data "${entry#*=}" --height-change-um "${entry%%=*}" --out "$model" \
-        | tee -a "$DATA/$name.height.json"
+        --spot-bias-degree "$height_bias" | tee -a "$DATA/$name.height.json"
     done
     if [ -n "${HEIGHT_BAGS:-}" ] && [ "${UNIT_TOLERANCES:-keep}" != keep ]; then
       "$DSS" calibrate-sigma --model "$model" "${nominal_data[@]}" --max-images 0 --out "$model" \

@@ -180,8 +180,12 @@ TEST(ShippedModels, EveryRecipeDescribesItsModelFile) {
     // its correction follows the mask height where the recipe fits that.
     const bool family = static_cast<bool>(r["calibrate_sigma"]["unit_tolerances"]);
     EXPECT_EQ(m.geometry_sigma_rad[0] > 0.0 && m.geometry_sigma_rad[1] > 0.0, family);
-    EXPECT_EQ(m.height_corrections.size(),
-              r["calibrate_height"] ? r["calibrate_height"]["changes_um"].size() : std::size_t{0});
+    const std::size_t heights = r["calibrate_height"] ? r["calibrate_height"]["changes_um"].size() : 0;
+    EXPECT_EQ(m.height_corrections.size(), heights);
+    // A spot bias where the recipe fits one, with its change at every height entry.
+    const bool spot_bias = static_cast<bool>(r["calibrate_sigma"]["spot_bias_degree"]);
+    EXPECT_EQ(m.spot_bias.active(), spot_bias);
+    EXPECT_EQ(m.spot_bias.by_height.size(), spot_bias ? heights : 0);
     // A geometric head reading two spots or more flags model_mismatch beyond
     // twice the 99.5th percentile of its design's residuals over their median:
     // a few times the level. Thousands would flag no drifted unit (an

@@ -11,6 +11,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <functional>
 
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/units.h"
@@ -269,7 +270,7 @@ TEST(UnitCalibration, AngleCorrectionFollowsTheUnitsMaskHeight) {
   higher.nominal = false;
   higher.mask_offset_um = Eigen::Vector3d(0.0, 0.0, 13.0);
   const TrainingSet moved = render(higher, model.meta.input, 60, 11, false);
-  const BiasCalibration fit = calibrateHeightCorrection(model, moved, 13.0, 60, 2);
+  const BiasCalibration fit = calibrateHeightCorrection(model, moved, 13.0, 60, 2).correction;
   ASSERT_EQ(model.meta.height_corrections.size(), 1u);
   EXPECT_GE(fit.degree, 0);
   EXPECT_LT(fit.rms_alpha_after_deg, 0.2 * fit.rms_alpha_before_deg);
@@ -336,6 +337,44 @@ TEST(UnitCalibration, HeightCorrectionsInterpolateBetweenTheirHeights) {
   EXPECT_NEAR(UnitAngleCorrection(design, entries, 15.0).bias(0, 0)[1], -1.25e-3, 1e-15);
 }
 
+// Images of 3 x 3 clusters of sites about each group's spot through the
+// model's geometry (its spot bias included) moved by offset_um(group, alpha,
+// beta), whose weighted centroid is that spot, at random angles within
+// +-5.5 deg (those with fewer than three whole spots left out).
+std::vector<UnitImage> clusterImages(const Model& model,
+                                     const std::function<Eigen::Vector2d(int, double, double)>& offset_um,
+                                     std::size_t count, std::uint64_t seed, std::size_t* spot_count = nullptr) {
+  const auto& geometry = *model.net->geometry();
+  const double pitch = model.meta.arch.detector_pitch_um;
+  Rng rng(seed);
+  std::vector<UnitImage> images;
+  for (std::size_t tries = 0; tries < 5 * count && images.size() < count; ++tries) {
+    UnitImage image;
+    image.alpha_rad = degToRad(rng.uniform(-5.5, 5.5));
+    image.beta_rad = degToRad(rng.uniform(-5.5, 5.5));
+    const auto spots =
+        geometry.groupSpotsUm(torch::tensor({image.alpha_rad, image.beta_rad}, torch::kDouble).view({1, 2}));
+    int whole = 0;
+    for (int g = 0; g < geometry.groups(); ++g) {
+      const Eigen::Vector2d centre = Eigen::Vector2d(spots[0][g][0].item<double>(), spots[0][g][1].item<double>()) +
+                                     offset_um(g, image.alpha_rad, image.beta_rad);
+      if (std::abs(centre.x()) > 0.5 * pitch * (model.meta.arch.detector_width_px - 10) ||
+          std::abs(centre.y()) > 0.5 * pitch * (model.meta.arch.detector_height_px - 10))
+        continue;
+      ++whole;
+      for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy) {
+          image.site_um.push_back(centre + pitch * Eigen::Vector2d(dx, dy));
+          image.site_weight.push_back(1.0 / (1.0 + dx * dx + dy * dy));
+        }
+    }
+    if (whole < 3) continue;
+    if (spot_count) *spot_count += static_cast<std::size_t>(whole);
+    images.push_back(std::move(image));
+  }
+  return images;
+}
+
 // Spots read off their ray trace's by a bias of each aperture class (here
 // as much as a tenth of a micrometre, a smooth function of the angles): the
 // solve takes their mean into its angles; without a model of each class's
@@ -361,36 +400,10 @@ TEST(SpotBias, IsFittedAndKeepsAUnitFitOfTheDesignWhereItIs) {
     const double a = alpha / scale, b = beta / scale;
     return Eigen::Vector2d(0.02 * c + 0.05 * a - 0.03 * c * a * b, -0.01 * c + 0.04 * c * b * b);
   };
-  // Images of clusters of sites about each biased spot whose weighted centroid is the spot.
-  Rng rng(5);
-  std::vector<UnitImage> images;
-  const double pitch = with_bias.meta.arch.detector_pitch_um;
   std::size_t spot_count = 0;
-  for (int tries = 0; tries < 400 && images.size() < 80; ++tries) {
-    UnitImage image;
-    image.alpha_rad = degToRad(rng.uniform(-5.5, 5.5));
-    image.beta_rad = degToRad(rng.uniform(-5.5, 5.5));
-    const auto spots =
-        geometry.groupSpotsUm(torch::tensor({image.alpha_rad, image.beta_rad}, torch::kDouble).view({1, 2}));
-    int whole = 0;
-    for (int g = 0; g < groups; ++g) {
-      const Eigen::Vector2d centre = Eigen::Vector2d(spots[0][g][0].item<double>(), spots[0][g][1].item<double>()) +
-                                     knownBias(g, image.alpha_rad, image.beta_rad);
-      if (std::abs(centre.x()) > 0.5 * pitch * (with_bias.meta.arch.detector_width_px - 10) ||
-          std::abs(centre.y()) > 0.5 * pitch * (with_bias.meta.arch.detector_height_px - 10))
-        continue;
-      ++whole;
-      for (int dx = -1; dx <= 1; ++dx)
-        for (int dy = -1; dy <= 1; ++dy) {
-          image.site_um.push_back(centre + pitch * Eigen::Vector2d(dx, dy));
-          image.site_weight.push_back(1.0 / (1.0 + dx * dx + dy * dy));
-        }
-    }
-    if (whole < 3) continue;
-    spot_count += static_cast<std::size_t>(whole);
-    images.push_back(std::move(image));
-  }
+  const std::vector<UnitImage> images = clusterImages(with_bias, knownBias, 80, 5, &spot_count);
   ASSERT_EQ(images.size(), 80u);
+  const double pitch = with_bias.meta.arch.detector_pitch_um;
 
   const SpotBiasFit fit = fitSpotBias(with_bias, images, 4);
   std::printf("spot bias: degree %d, %zu classes, %zu spots, RMS %.4f -> %.2g um\n", fit.bias.degree,
@@ -452,6 +465,106 @@ TEST(SpotBias, IsFittedAndKeepsAUnitFitOfTheDesignWhereItIs) {
   SpotBias wrong = fit.bias;
   wrong.group_class.push_back(0);
   EXPECT_THROW(setSpotBias(with_bias, wrong), std::invalid_argument);
+}
+
+// The bias changes with the mask height (an air gap spreads the spots at
+// wide angles otherwise): its change is fitted at a moved height against the
+// design's bias, interpolated in the height, follows the geometry and the
+// file, and a unit fit of a unit at that height moves no aperture for it.
+TEST(SpotBias, FollowsTheMaskHeight) {
+  RandomMaskOptions mask;
+  mask.apertures = 5;
+  mask.diameter_spread = 0.3;
+  const SensorConfig design = drawRandomMask(drawnDesign(41), mask, 43).config;
+  Model model = untrainedModel(design);
+  auto& geometry = *model.net->geometry();
+  const double scale = model.meta.angle_scale_rad;
+  std::vector<double> flux(static_cast<std::size_t>(geometry.groups()), 0.0);
+  for (int k = 0; k < geometry.apertures(); ++k)
+    flux[static_cast<std::size_t>(geometry.aperture_group[k].item<std::int64_t>())] +=
+        geometry.aperture_flux[k].item<double>();
+  const std::vector<int> classes = spotBiasClasses(flux);
+  auto designBias = [&](int g, double alpha, double beta) {
+    const double c = 1.0 + classes[static_cast<std::size_t>(g)];
+    return Eigen::Vector2d(0.02 * c + 0.05 * alpha / scale, -0.01 * c * beta / scale);
+  };
+  auto changeAt10um = [&](int g, double alpha, double beta) {
+    const double c = 1.0 + classes[static_cast<std::size_t>(g)];
+    const double a = alpha / scale, b = beta / scale;
+    return Eigen::Vector2d(0.03 * c * a * a, -0.02 * c * a * b);
+  };
+  setSpotBias(model, fitSpotBias(model, clusterImages(model, designBias, 60, 7), 3).bias);
+  const SpotBias design_bias = model.meta.spot_bias;
+  const MaskGeometry design_mask = geometry.maskGeometry();
+  MaskGeometry higher = design_mask;
+  higher.height_um += 10.0;
+
+  // Fitted at +10 um: the change alone (the design's bias is in the readings).
+  geometry.setMaskGeometry(higher);
+  const std::vector<UnitImage> images = clusterImages(model, changeAt10um, 60, 8);
+  const SpotBiasFit change = fitSpotBias(model, images, 3, /*change_from_model_bias=*/true);
+  std::printf("spot bias change at +10 um: degree %d, RMS %.4f -> %.2g um\n", change.bias.degree, change.rms_before_um,
+              change.rms_after_um);
+  EXPECT_GT(change.rms_before_um, 0.005);
+  EXPECT_GE(change.bias.degree, 2);
+  EXPECT_LT(change.rms_after_um, 1e-3 * change.rms_before_um);
+  SpotBias bias = design_bias;
+  bias.by_height.push_back({10.0, change.bias.degree, change.bias.x_um, change.bias.y_um});
+  bias.by_height.push_back({-10.0, AngleCorrection::kNone, {}, {}});  // fitted, and no change below
+  setSpotBias(model, bias);
+
+  // Interpolated in the height; the geometry adds the bias at its own.
+  const Eigen::Vector2d angles(degToRad(3.0), degToRad(-2.0));
+  auto groupBias = [&](const SpotBias& b, int g) {
+    std::vector<Eigen::Vector2d> spots(static_cast<std::size_t>(geometry.groups()), Eigen::Vector2d::Zero());
+    b.addTo(angles, spots);
+    return spots[static_cast<std::size_t>(g)];
+  };
+  for (int g = 0; g < geometry.groups(); ++g) {
+    const Eigen::Vector2d d = groupBias(design_bias, g), c = groupBias(change.bias, g);
+    EXPECT_LT((groupBias(bias.at(5.0), g) - (d + 0.5 * c)).norm(), 1e-12);
+    EXPECT_LT((groupBias(bias.at(20.0), g) - (d + 2.0 * c)).norm(), 1e-12);
+    EXPECT_LT((groupBias(bias.at(-5.0), g) - d).norm(), 1e-12);
+    EXPECT_LT((groupBias(geometry.spotBias(), g) - (d + c)).norm(), 1e-12);
+  }
+  EXPECT_TRUE(geometry.spotBias().by_height.empty());
+
+  // A unit at +10 um, fitted from the design: its height found, its
+  // apertures left where they are (without the change they move).
+  auto apertureShiftRmsUm = [&](const MaskGeometry& m) {
+    double sum = 0.0;
+    for (std::size_t k = 0; k < m.apertures_um.size(); ++k)
+      sum += (m.apertures_um[k] - design_mask.apertures_um[k]).squaredNorm();
+    return std::sqrt(sum / static_cast<double>(m.apertures_um.size()));
+  };
+  const std::vector<UnitImage> unit_images = clusterImages(
+      model, [](int, double, double) { return Eigen::Vector2d(0, 0); }, 80, 9);
+  auto fitFromDesign = [&](const SpotBias& b) {
+    Model unit = untrainedModel(design);
+    setSpotBias(unit, b);
+    fitUnitGeometry(unit, unit_images);
+    return unit.net->geometry()->maskGeometry();
+  };
+  const MaskGeometry with_change = fitFromDesign(bias), without_change = fitFromDesign(design_bias);
+  std::printf("unit at +10 um: height %.3f um, apertures moved %.2g um with the change; %.3f um, %.4f um without\n",
+              with_change.height_um - design_mask.height_um, apertureShiftRmsUm(with_change),
+              without_change.height_um - design_mask.height_um, apertureShiftRmsUm(without_change));
+  EXPECT_NEAR(with_change.height_um - design_mask.height_um, 10.0, 0.05);
+  EXPECT_LT(apertureShiftRmsUm(with_change), 0.2 * apertureShiftRmsUm(without_change));
+
+  // The file keeps the changes; one height twice is refused.
+  const std::string path = ::testing::TempDir() + "/spot_bias_height.dssmodel";
+  saveModel(model, path);
+  const Model loaded = loadModel(path, &design);
+  std::remove(path.c_str());
+  ASSERT_EQ(loaded.meta.spot_bias.by_height.size(), 2u);
+  EXPECT_EQ(loaded.meta.spot_bias.by_height[0].x_um, change.bias.x_um);
+  EXPECT_EQ(loaded.meta.spot_bias.by_height[1].degree, AngleCorrection::kNone);
+  for (int g = 0; g < geometry.groups(); ++g)
+    EXPECT_LT((groupBias(loaded.net->geometry()->spotBias(), g) - groupBias(geometry.spotBias(), g)).norm(), 1e-12);
+  SpotBias twice = bias;
+  twice.by_height.push_back(twice.by_height.front());
+  EXPECT_THROW(setSpotBias(model, twice), std::invalid_argument);
 }
 
 TEST(UnitCalibration, RefusesAModelWithoutAGeometricHead) {

@@ -21,7 +21,8 @@ int runCalibrateHeight(int argc, char** argv) {
       "them): on labelled images of the design with its mask moved by --height-change-um (dss generate --set "
       "mask.height_mm=...), the model's geometry moved alike, the correction's change is fitted (Legendre "
       "polynomials of the angles, degree chosen by two-fold cross-validation) and recorded for height changes of "
-      "that sign, in proportion. Run once per sign on the family model (geometric head), before calibrating "
+      "that sign, in proportion; with a spot bias in the model, its change at that height likewise. Run once per sign "
+      "on the family model (geometric head), before calibrating "
       "units; writes the model atomically and prints one JSON line.",
       {
           {"model", "MODEL", "family model (geometric head, its design's geometry)", "", true, false},
@@ -32,6 +33,11 @@ int runCalibrateHeight(int argc, char** argv) {
           {"max-images", "N", "use at most N images, over all bags (0: all)", "5000", false, false},
           {"correction-degree", "D",
            "highest degree of the change (0.." + std::to_string(AngleCorrection::kMaxDegree) + ")", "16", false, false},
+          {"spot-bias-degree", "D|none",
+           "with a spot bias in the model (calibrate-sigma --spot-bias-degree): highest degree of its change at this "
+           "height, fitted on the same images (0.." +
+               std::to_string(AngleCorrection::kMaxDegree) + "; none: the bias stays with the height)",
+           "10", false, false},
       });
   if (!args.parse(argc, argv, 2)) return 0;
   const double height_change_um = args.getDouble("height-change-um");
@@ -41,6 +47,13 @@ int runCalibrateHeight(int argc, char** argv) {
   if (degree < 0 || degree > AngleCorrection::kMaxDegree)
     throw UsageError("dss calibrate-height: --correction-degree must be 0.." +
                      std::to_string(AngleCorrection::kMaxDegree) + ", not " + args.get("correction-degree"));
+  int spot_bias_degree = AngleCorrection::kNone;
+  if (args.get("spot-bias-degree") != "none") {
+    spot_bias_degree = static_cast<int>(args.getInt("spot-bias-degree"));
+    if (spot_bias_degree < 0 || spot_bias_degree > AngleCorrection::kMaxDegree)
+      throw UsageError("dss calibrate-height: --spot-bias-degree must be 'none' or 0.." +
+                       std::to_string(AngleCorrection::kMaxDegree) + ", not " + args.get("spot-bias-degree"));
+  }
   sparse::configureThreads(1, 2);
   Model model = loadModel(args.get("model"));
   if (!model.meta.arch.geometric_head)
@@ -49,13 +62,14 @@ int runCalibrateHeight(int argc, char** argv) {
   moved.mask.height_mm += height_change_um / 1000.0;
   const auto max_images = static_cast<std::uint64_t>(args.getInt("max-images"));
   const TrainingData data = readLabelledBags("calibrate-height", args.all("data"), moved, {}, max_images);
-  BiasCalibration c;
+  HeightCalibration fit;
   try {
-    c = calibrateHeightCorrection(model, data.samples, height_change_um, max_images ? max_images : data.samples.size(),
-                                  degree);
+    fit = calibrateHeightCorrection(model, data.samples, height_change_um,
+                                    max_images ? max_images : data.samples.size(), degree, spot_bias_degree);
   } catch (const std::invalid_argument& e) {
     throw UsageError(std::string("dss calibrate-height: ") + e.what());
   }
+  const BiasCalibration& c = fit.correction;
   saveModel(model, args.get("out"));
   std::cerr << "wrote " << args.get("out") << "\n";
   std::cout << "{\"command\": \"calibrate-height\", \"model\": \"" << args.get("out")
@@ -67,7 +81,17 @@ int runCalibrateHeight(int argc, char** argv) {
             << ", \"rms_beta_after_deg\": " << c.rms_beta_after_deg << ", \"cv_rms_deg\": [";
   for (std::size_t k = 0; k < c.cross_validated_rms_deg.size(); ++k)
     std::cout << (k ? ", " : "") << c.cross_validated_rms_deg[k];
-  std::cout << "]}" << std::endl;
+  std::cout << "]";
+  if (fit.spot_bias) {
+    const SpotBiasFit& b = *fit.spot_bias;
+    std::cout << ", \"spot_bias_degree\": " << b.bias.degree << ", \"spot_bias_spots\": " << b.spots
+              << ", \"spot_bias_rms_um_before\": " << b.rms_before_um
+              << ", \"spot_bias_rms_um_after\": " << b.rms_after_um << ", \"spot_bias_cv_rms_um\": [";
+    for (std::size_t k = 0; k < b.cross_validated_rms_um.size(); ++k)
+      std::cout << (k ? ", " : "") << b.cross_validated_rms_um[k];
+    std::cout << "]";
+  }
+  std::cout << "}" << std::endl;
   return 0;
 }
 

@@ -140,6 +140,9 @@ int runCalibrateSigma(int argc, char** argv) {
   // The model's predictions on the images, once per fit: minutes for a large model.
   std::optional<SpotBiasFit> spot_bias;
   if (spot_bias_degree) {
+    if (!model.meta.spot_bias.by_height.empty())
+      std::cerr << "calibrate-sigma: the spot bias's changes with the mask height were fitted against the bias "
+                   "replaced here and are dropped: rerun dss calibrate-height\n";
     setSpotBias(model, SpotBias{});
     if (*spot_bias_degree != AngleCorrection::kNone) {
       std::cerr << "calibrate-sigma: spot bias on " << n << " images\n";

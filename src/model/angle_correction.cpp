@@ -65,22 +65,34 @@ void HeightCorrection::validate() const {
   change.validate();
 }
 
-UnitAngleCorrection::UnitAngleCorrection(const AngleCorrection& design, const std::vector<HeightCorrection>& by_height,
-                                         double height_change_um)
-    : design_(design) {
-  // The entries on this side, nearest the design first, after the design's own (0, none).
-  std::vector<std::pair<double, const AngleCorrection*>> side{{0.0, nullptr}};
-  for (const HeightCorrection& h : by_height)
-    if (h.change.active() && height_change_um * h.height_change_um > 0.0)
-      side.emplace_back(std::abs(h.height_change_um), &h.change);
-  if (side.size() < 2) return;
-  std::sort(side.begin(), side.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+std::vector<std::pair<int, double>> heightInterpolation(const std::vector<double>& entry_changes_um,
+                                                        double height_change_um) {
+  // The entries on this side, nearest the design first, after the design's own (0, -1).
+  std::vector<std::pair<double, int>> side{{0.0, -1}};
+  for (std::size_t k = 0; k < entry_changes_um.size(); ++k)
+    if (height_change_um * entry_changes_um[k] > 0.0)
+      side.emplace_back(std::abs(entry_changes_um[k]), static_cast<int>(k));
+  if (side.size() < 2) return {};
+  std::sort(side.begin(), side.end());
   const double distance = std::abs(height_change_um);
   std::size_t upper = 1;
   while (upper + 1 < side.size() && side[upper].first < distance) ++upper;
   const double t = (distance - side[upper - 1].first) / (side[upper].first - side[upper - 1].first);
-  changes_ = {side[upper - 1].second, side[upper].second};
-  weights_ = {1.0 - t, t};
+  return {{side[upper - 1].second, 1.0 - t}, {side[upper].second, t}};
+}
+
+UnitAngleCorrection::UnitAngleCorrection(const AngleCorrection& design, const std::vector<HeightCorrection>& by_height,
+                                         double height_change_um)
+    : design_(design) {
+  std::vector<const AngleCorrection*> changes;
+  std::vector<double> heights;
+  for (const HeightCorrection& h : by_height)
+    if (h.change.active()) changes.push_back(&h.change), heights.push_back(h.height_change_um);
+  const auto terms = heightInterpolation(heights, height_change_um);
+  for (std::size_t k = 0; k < terms.size(); ++k) {
+    changes_[k] = terms[k].first < 0 ? nullptr : changes[static_cast<std::size_t>(terms[k].first)];
+    weights_[k] = terms[k].second;
+  }
 }
 
 std::array<double, 2> UnitAngleCorrection::bias(double a, double b) const {

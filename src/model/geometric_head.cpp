@@ -130,7 +130,7 @@ torch::Tensor SensorGeometryImpl::groupSpotsUm(const torch::Tensor& angles_rad) 
     spots = torch::zeros({spots.size(0), group_count_, 2}, kDouble).index_add(1, aperture_group, spots * flux) /
             sum.view({1, -1, 1});
   }
-  if (!spot_bias_.active()) return spots;
+  if (!spot_bias_here_.active()) return spots;
   const auto angles = angles_rad.detach().to(torch::kFloat64).contiguous();
   const auto a = angles.accessor<double, 2>();
   auto bias = torch::zeros({angles.size(0), group_count_, 2}, kDouble);
@@ -138,7 +138,7 @@ torch::Tensor SensorGeometryImpl::groupSpotsUm(const torch::Tensor& angles_rad) 
   std::vector<Eigen::Vector2d> per_group(static_cast<std::size_t>(group_count_));
   for (std::int64_t i = 0; i < angles.size(0); ++i) {
     std::fill(per_group.begin(), per_group.end(), Eigen::Vector2d::Zero());
-    spot_bias_.addTo(Eigen::Vector2d(a[i][0], a[i][1]), per_group);
+    spot_bias_here_.addTo(Eigen::Vector2d(a[i][0], a[i][1]), per_group);
     for (std::int64_t g = 0; g < group_count_; ++g) {
       b[i][g][0] = per_group[static_cast<std::size_t>(g)].x();
       b[i][g][1] = per_group[static_cast<std::size_t>(g)].y();
@@ -182,6 +182,12 @@ void SensorGeometryImpl::setMaskGeometry(const MaskGeometry& m) {
     apertures_um[k][0] = m.apertures_um[static_cast<std::size_t>(k)].x();
     apertures_um[k][1] = m.apertures_um[static_cast<std::size_t>(k)].y();
   }
+  spot_bias_here_ = spotBiasAt(m.height_um);
+}
+
+void SensorGeometryImpl::setDesignHeight(const GeometryDesign& design) {
+  design_height_um_ = design.height_um;
+  spot_bias_here_ = spotBiasAt(height_um.item<double>());
 }
 
 void SensorGeometryImpl::setPositionVariance(const std::vector<double>& aperture_variance_um2, double spot_noise_um2) {
@@ -216,6 +222,11 @@ void SensorGeometryImpl::setPositionVariance(const std::vector<double>& aperture
 void SensorGeometryImpl::setSpotBias(const SpotBias& bias) {
   bias.validate(groups());
   spot_bias_ = bias;
+  spot_bias_here_ = spotBiasAt(height_um.item<double>());
+}
+
+SpotBias SensorGeometryImpl::spotBiasAt(double mask_height_um) const {
+  return spot_bias_.at(design_height_um_ ? mask_height_um - *design_height_um_ : 0.0);
 }
 
 geometric::Design geometric::designOf(const SensorGeometryImpl& geometry) {

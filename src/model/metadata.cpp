@@ -301,9 +301,24 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "degree" << YAML::Value << m.spot_bias.degree;
     e << YAML::Key << "angle_scale_rad" << YAML::Value << m.spot_bias.angle_scale_rad;
     e << YAML::Key << "group_class" << YAML::Value << YAML::Flow << m.spot_bias.group_class;
-    for (const auto& [key, axis] : {std::pair{"x_um", &m.spot_bias.x_um}, std::pair{"y_um", &m.spot_bias.y_um}}) {
-      e << YAML::Key << key << YAML::Value << YAML::BeginSeq;
-      for (const auto& c : *axis) e << YAML::Flow << c;
+    auto coefficients = [&e](const std::vector<std::vector<double>>& x_um,
+                             const std::vector<std::vector<double>>& y_um) {
+      for (const auto& [key, axis] : {std::pair{"x_um", &x_um}, std::pair{"y_um", &y_um}}) {
+        e << YAML::Key << key << YAML::Value << YAML::BeginSeq;
+        for (const auto& c : *axis) e << YAML::Flow << c;
+        e << YAML::EndSeq;
+      }
+    };
+    coefficients(m.spot_bias.x_um, m.spot_bias.y_um);
+    if (!m.spot_bias.by_height.empty()) {
+      e << YAML::Key << "by_height" << YAML::Value << YAML::BeginSeq;
+      for (const SpotBiasChange& c : m.spot_bias.by_height) {
+        e << YAML::BeginMap;
+        e << YAML::Key << "height_change_um" << YAML::Value << c.height_change_um;
+        e << YAML::Key << "degree" << YAML::Value << c.degree;
+        coefficients(c.x_um, c.y_um);
+        e << YAML::EndMap;
+      }
       e << YAML::EndSeq;
     }
     e << YAML::EndMap;
@@ -512,6 +527,19 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     m.spot_bias.group_class = get<std::vector<int>>(bias, "group_class", origin, at);
     m.spot_bias.x_um = get<std::vector<std::vector<double>>>(bias, "x_um", origin, at);
     m.spot_bias.y_um = get<std::vector<std::vector<double>>>(bias, "y_um", origin, at);
+    if (const YAML::Node list = bias["by_height"]) {  // absent: the bias stays with the height
+      if (!list.IsSequence()) throw ModelError(origin + ": metadata key 'spot_bias.by_height' is not a list");
+      for (std::size_t i = 0; i < list.size(); ++i) {
+        const std::string entry = at + "by_height[" + std::to_string(i) + "].";
+        if (!list[i].IsMap()) throw ModelError(origin + ": metadata key '" + entry + "' is not a map");
+        SpotBiasChange c;
+        c.height_change_um = get<double>(list[i], "height_change_um", origin, entry);
+        c.degree = get<int>(list[i], "degree", origin, entry);
+        c.x_um = get<std::vector<std::vector<double>>>(list[i], "x_um", origin, entry);
+        c.y_um = get<std::vector<std::vector<double>>>(list[i], "y_um", origin, entry);
+        m.spot_bias.by_height.push_back(std::move(c));
+      }
+    }
     if (!m.spot_bias.active()) throw ModelError(origin + ": metadata key 'spot_bias.degree' must be 0 or more");
   }
   m.sensor_name = get<std::string>(root, "sensor_name", origin, "");

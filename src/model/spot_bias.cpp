@@ -24,6 +24,31 @@ void SpotBias::addTo(const Eigen::Vector2d& angles_rad, std::vector<Eigen::Vecto
     group_spots_um[g] += per_class[static_cast<std::size_t>(group_class[g])];
 }
 
+SpotBias SpotBias::at(double height_change_um) const {
+  SpotBias out = *this;
+  out.by_height.clear();
+  if (!active() || by_height.empty()) return out;
+  std::vector<double> heights;
+  for (const SpotBiasChange& c : by_height) heights.push_back(c.height_change_um);
+  for (const auto& [entry, weight] : heightInterpolation(heights, height_change_um)) {
+    if (entry < 0) continue;
+    const SpotBiasChange& c = by_height[static_cast<std::size_t>(entry)];
+    if (c.degree == AngleCorrection::kNone) continue;
+    // The terms of a lower degree are the first of a higher one's.
+    if (c.degree > out.degree) {
+      out.degree = c.degree;
+      for (auto* axis : {&out.x_um, &out.y_um})
+        for (auto& coefficients : *axis) coefficients.resize(AngleCorrection::termCount(c.degree), 0.0);
+    }
+    for (std::size_t k = 0; k < out.x_um.size(); ++k)
+      for (std::size_t t = 0; t < c.x_um[k].size(); ++t) {
+        out.x_um[k][t] += weight * c.x_um[k][t];
+        out.y_um[k][t] += weight * c.y_um[k][t];
+      }
+  }
+  return out;
+}
+
 void SpotBias::validate(int groups) const {
   if (!active()) return;
   auto fail = [](const std::string& what) { throw std::invalid_argument("spot bias: " + what); };
@@ -45,6 +70,29 @@ void SpotBias::validate(int groups) const {
       for (double v : c)
         if (!std::isfinite(v)) fail("a coefficient is not finite");
     }
+  for (std::size_t e = 0; e < by_height.size(); ++e) {
+    const SpotBiasChange& c = by_height[e];
+    const std::string at = "the change at " + std::to_string(c.height_change_um) + " um: ";
+    if (!std::isfinite(c.height_change_um) || c.height_change_um == 0.0)
+      fail("a change's height change must be finite and non-zero");
+    for (std::size_t other = 0; other < e; ++other)
+      if (by_height[other].height_change_um == c.height_change_um) fail(at + "given twice");
+    if (c.degree < AngleCorrection::kNone || c.degree > AngleCorrection::kMaxDegree)
+      fail(at + "degree " + std::to_string(c.degree) + " is outside -1.." +
+           std::to_string(AngleCorrection::kMaxDegree));
+    const std::size_t classes = c.degree == AngleCorrection::kNone ? 0 : x_um.size();
+    if (c.x_um.size() != classes || c.y_um.size() != classes)
+      fail(at + "needs " + std::to_string(classes) + " coefficient lists per axis");
+    const std::size_t terms = AngleCorrection::termCount(std::max(c.degree, 0));
+    for (const auto* axis : {&c.x_um, &c.y_um})
+      for (const auto& coefficients : *axis) {
+        if (coefficients.size() != terms)
+          fail(at + "degree " + std::to_string(c.degree) + " needs " + std::to_string(terms) +
+               " coefficients per class and axis, not " + std::to_string(coefficients.size()));
+        for (double v : coefficients)
+          if (!std::isfinite(v)) fail(at + "a coefficient is not finite");
+      }
+  }
 }
 
 std::vector<int> spotBiasClasses(const std::vector<double>& group_flux) {
@@ -102,13 +150,14 @@ std::array<Eigen::VectorXd, 2> fitClass(const std::vector<SpotOffset>& spots, in
 
 }  // namespace
 
-SpotBiasFit fitSpotBias(const Model& model, const std::vector<UnitImage>& images, int max_degree) {
+SpotBiasFit fitSpotBias(const Model& model, const std::vector<UnitImage>& images, int max_degree,
+                        bool change_from_model_bias) {
   if (!model.net->geometry()) throw std::invalid_argument("spot bias: the model has no geometric head");
   if (max_degree < 0 || max_degree > AngleCorrection::kMaxDegree)
     throw std::invalid_argument("spot bias: degree " + std::to_string(max_degree) + " is outside 0.." +
                                 std::to_string(AngleCorrection::kMaxDegree));
   geometric::Design design = geometric::designOf(*model.net->geometry());
-  design.spot_bias = SpotBias{};  // the readings against the ray trace alone
+  if (!change_from_model_bias) design.spot_bias = SpotBias{};  // the readings against the ray trace alone
   const geometric::Options options = geometric::solveOptions(model);
   std::vector<double> group_flux(static_cast<std::size_t>(design.groups), 0.0);
   for (std::size_t k = 0; k < design.group.size(); ++k)
@@ -155,7 +204,8 @@ SpotBiasFit fitSpotBias(const Model& model, const std::vector<UnitImage>& images
     return sum;
   };
   int best = AngleCorrection::kNone;
-  double best_rms = std::numeric_limits<double>::infinity();
+  double best_rms = fit.rms_before_um;
+  fit.cross_validated_rms_um.push_back(best_rms);
   for (int d = 0; d <= max_degree; ++d) {
     const std::size_t n = AngleCorrection::termCount(d);
     double sum = 0.0;
@@ -168,6 +218,12 @@ SpotBiasFit fitSpotBias(const Model& model, const std::vector<UnitImage>& images
     fit.cross_validated_rms_um.push_back(rms);
     if (rms < best_rms) best_rms = rms, best = d;
   }
+  fit.bias.degree = best;
+  fit.rms_after_um = fit.rms_before_um;
+  if (best == AngleCorrection::kNone) {
+    fit.bias.group_class.clear();
+    return fit;
+  }
   const std::size_t n = AngleCorrection::termCount(best);
   std::vector<std::array<Eigen::VectorXd, 2>> per_class;
   for (int c = 0; c < classes; ++c) {
@@ -175,7 +231,6 @@ SpotBiasFit fitSpotBias(const Model& model, const std::vector<UnitImage>& images
     fit.bias.x_um.emplace_back(per_class.back()[0].data(), per_class.back()[0].data() + n);
     fit.bias.y_um.emplace_back(per_class.back()[1].data(), per_class.back()[1].data() + n);
   }
-  fit.bias.degree = best;
   fit.rms_after_um = std::sqrt(squaredError(per_class, n, -1) / weight);
   return fit;
 }

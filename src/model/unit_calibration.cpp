@@ -383,7 +383,8 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   report.iterations += coarse.run(p, obs, options.max_iterations);
   geometric::Design fitted = design;
   fitted.mask = coarse.apply(p);
-  // The angle correction changes with the mask height: the targets at the coarse fit's.
+  // The angle correction and the spot bias change with the mask height: both at the coarse fit's.
+  fitted.spot_bias = geometry.spotBiasAt(fitted.mask.height_um);
   targets = solvedTargets(model, images, fitted.mask);
   obs = observe(fitted, images, targets, solve, weight_unit);
   const std::vector<double> norms = weightedNorms(coarse, p, obs);

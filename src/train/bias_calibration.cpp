@@ -11,6 +11,7 @@
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sscnn.h"
+#include "digital_sun_sensor/model/unit_calibration.h"
 #include "held_out.h"
 
 namespace dss {
@@ -136,8 +137,8 @@ BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t
   return c;
 }
 
-BiasCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data, double height_change_um,
-                                          std::size_t max_samples, int max_degree) {
+HeightCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data, double height_change_um,
+                                            std::size_t max_samples, int max_degree, int spot_bias_degree) {
   const std::string what = "height correction";
   SensorGeometry geometry = model.net->geometry();
   if (!geometry) throw std::invalid_argument(what + ": the model's head is not geometric");
@@ -148,10 +149,16 @@ BiasCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data,
                                 ": the model holds a unit's geometry (its mask height differs from the design's "
                                 "by " +
                                 std::to_string(model.heightChangeUm()) + " um): use the family model");
-  // Fitted against the design's correction alone, the other entries set aside.
+  // Fitted against the design's correction and spot bias alone, the other entries set aside.
   std::vector<HeightCorrection> entries;
   for (const HeightCorrection& h : model.meta.height_corrections)
     if (h.height_change_um != height_change_um) entries.push_back(h);
+  SpotBias bias = model.meta.spot_bias;
+  bias.by_height.erase(std::remove_if(bias.by_height.begin(), bias.by_height.end(),
+                                      [&](const SpotBiasChange& c) { return c.height_change_um == height_change_um; }),
+                       bias.by_height.end());
+  SpotBias design_bias = bias;
+  design_bias.by_height.clear();
   model.meta.height_corrections.clear();
   const MaskGeometry design = geometry->maskGeometry();
   MaskGeometry moved = design;
@@ -163,11 +170,17 @@ BiasCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data,
     model.meta.angle_correction = base;
     model.meta.metrics_yaml = metrics;
     model.meta.height_corrections = entries;
+    setSpotBias(model, bias);
   };
+  setSpotBias(model, design_bias);
   geometry->setMaskGeometry(moved);
-  BiasCalibration c;
+  HeightCalibration c;
   try {
-    c = calibrateBias(model, data, max_samples, max_degree, /*add_to_model_correction=*/true);
+    c.correction = calibrateBias(model, data, max_samples, max_degree, /*add_to_model_correction=*/true);
+    // The bias's change, read where the moved correction takes the solve to the truth.
+    if (bias.active() && spot_bias_degree != AngleCorrection::kNone)
+      c.spot_bias = fitSpotBias(model, readUnitImages(model, data, max_samples), spot_bias_degree,
+                                /*change_from_model_bias=*/true);
   } catch (...) {
     restore();
     throw;
@@ -180,8 +193,16 @@ BiasCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data,
     h.change.alpha[k] -= base.alpha[k];
     h.change.beta[k] -= base.beta[k];
   }
+  if (c.spot_bias) {
+    SpotBiasChange change;
+    change.height_change_um = height_change_um;
+    change.degree = c.spot_bias->bias.degree;
+    change.x_um = c.spot_bias->bias.x_um;
+    change.y_um = c.spot_bias->bias.y_um;
+    bias.by_height.push_back(std::move(change));
+  }
   restore();
-  if (c.degree != AngleCorrection::kNone) model.meta.height_corrections.push_back(h);
+  if (c.correction.degree != AngleCorrection::kNone) model.meta.height_corrections.push_back(h);
   return c;
 }
 

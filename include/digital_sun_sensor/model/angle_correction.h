@@ -9,6 +9,7 @@
 
 #include <array>
 #include <cstddef>
+#include <utility>
 #include <vector>
 
 namespace dss {
@@ -50,6 +51,15 @@ struct HeightCorrection {
   // Throws std::invalid_argument for a zero or non-finite height change or a bad correction.
   void validate() const;
 };
+
+// Where a quantity fitted at a few mask height changes (entries; the design
+// itself is a change of 0 with no change of the quantity) is taken at
+// `height_change_um`: linearly between the two entries of the same sign that
+// bracket it (or the design and the nearest), along the last two beyond the
+// farthest. Up to two (entry index, weight) pairs; an index of -1 is the
+// design's no change; no entry on that side: none.
+std::vector<std::pair<int, double>> heightInterpolation(const std::vector<double>& entry_changes_um,
+                                                        double height_change_um);
 
 // The correction for a geometry whose mask height differs from the design's
 // by `height_change_um`: the design's, plus the changes of the entries of

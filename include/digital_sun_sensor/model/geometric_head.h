@@ -49,7 +49,7 @@ class SensorGeometryImpl : public torch::nn::Module {
   // The design's mask height, which the model's angle corrections were
   // fitted at: set by setDesign, and for a loaded model from its sensor
   // config (a unit model's tensors hold the unit). nullopt: not set.
-  void setDesignHeight(const GeometryDesign& design) { design_height_um_ = design.height_um; }
+  void setDesignHeight(const GeometryDesign& design);
   const std::optional<double>& designHeightUm() const { return design_height_um_; }
 
   // A unit calibration's uncertainty of each aperture's position [um^2]
@@ -62,10 +62,12 @@ class SensorGeometryImpl : public torch::nn::Module {
   const std::vector<double>& groupPositionVariance() const { return group_variance_; }
 
   // Where the network reads each group's whole spot off the ray trace's
-  // (ModelMetadata::spot_bias); inactive: nowhere. Throws
-  // std::invalid_argument as SpotBias::validate.
+  // (ModelMetadata::spot_bias, its changes with the height included);
+  // inactive: nowhere. Throws std::invalid_argument as SpotBias::validate.
   void setSpotBias(const SpotBias& bias);
-  const SpotBias& spotBias() const { return spot_bias_; }
+  // The bias at the geometry's mask height (what groupSpotsUm adds), and at another.
+  const SpotBias& spotBias() const { return spot_bias_here_; }
+  SpotBias spotBiasAt(double mask_height_um) const;
 
   torch::Tensor height_um;           // [1]
   torch::Tensor offset_um;           // [2] lateral offset of the mask
@@ -82,7 +84,8 @@ class SensorGeometryImpl : public torch::nn::Module {
   double air_above_exit_um_ = 0.0;
   std::optional<double> design_height_um_;
   std::vector<double> group_variance_;  // per group, in units of the spot noise per unit weight
-  SpotBias spot_bias_;
+  SpotBias spot_bias_;                  // the design's, with its changes
+  SpotBias spot_bias_here_;             // at height_um
 };
 TORCH_MODULE(SensorGeometry);
 

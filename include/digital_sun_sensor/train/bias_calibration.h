@@ -7,8 +7,10 @@
 #pragma once
 
 #include <cstddef>
+#include <optional>
 #include <vector>
 
+#include "digital_sun_sensor/model/spot_bias.h"
 #include "digital_sun_sensor/train/training_set.h"
 
 namespace dss {
@@ -38,15 +40,26 @@ struct BiasCalibration {
 BiasCalibration calibrateBias(Model& model, const TrainingSet& data, std::size_t max_samples, int max_degree,
                               bool add_to_model_correction = false, const SampleProgress& progress = {});
 
+struct HeightCalibration {
+  BiasCalibration correction;
+  std::optional<SpotBiasFit> spot_bias;  // the spot bias's change, where fitted
+};
+
 // Geometric head: fits how the model's angle correction changes with the
 // mask height (ModelMetadata::height_corrections) on images of the design
 // with its mask moved by `height_change_um` (a sensor config with that
 // height), the model's geometry moved alike while it fits what the
 // correction leaves (degree at most `max_degree`, cross-validated); replaces
-// an entry of the same height change, and adds none where no degree helps. The model
-// must hold its design's geometry (a family model). Throws
-// std::invalid_argument naming what is wrong.
-BiasCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data, double height_change_um,
-                                          std::size_t max_samples, int max_degree);
+// an entry of the same height change, and adds none where no degree helps.
+// With a spot bias in the model and `spot_bias_degree` >= 0, then fits the
+// bias's change at that height on the same images (fitSpotBias, relative to
+// the design's bias, degree at most `spot_bias_degree`) and records it in
+// the bias (SpotBias::by_height, replacing one of the same height change;
+// kNone: the bias's change at that height is removed, as the correction's
+// is refitted against the design's bias). The model must hold its design's
+// geometry (a family model). Throws std::invalid_argument naming what is wrong.
+HeightCalibration calibrateHeightCorrection(Model& model, const TrainingSet& data, double height_change_um,
+                                            std::size_t max_samples, int max_degree,
+                                            int spot_bias_degree = AngleCorrection::kNone);
 
 }  // namespace dss
