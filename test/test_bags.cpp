@@ -139,6 +139,14 @@ TEST(Generate, BadInputGetsClearErrors) {
     EXPECT_NE(r.output.find("--spot-bias-degree"), std::string::npos) << r.output;
     EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   }
+  // calibrate-height: a spot bias degree out of range, before any bag is read.
+  r =
+      run("calibrate-height --model models/wide_ma_family.dssmodel --data /nonexistent_dir/x.bag "
+          "--height-change-um 10 --spot-bias-degree 25 --out " +
+          out);
+  EXPECT_EQ(r.code, 2) << r.output;
+  EXPECT_NE(r.output.find("--spot-bias-degree"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("/nonexistent_dir/x.bag"), std::string::npos) << r.output;
   // And a symmetry that is unknown, or that the model's sensor lacks.
   r = run("calibrate-sigma --model models/thesis_sa.dssmodel --data /nonexistent_dir/x.bag --out " + out +
           " --symmetry mirror");

@@ -310,6 +310,28 @@ TEST(UnitCalibration, AngleCorrectionFollowsTheUnitsMaskHeight) {
   saveModel(model, path);
   EXPECT_THROW(loadModel(path, &design), ModelError);
   std::remove(path.c_str());
+
+  // With a spot bias, its change at that height is fitted on the same images
+  // and recorded beside the correction's; the design's bias stays.
+  Model biased = untrainedModel(design);
+  SpotBias bias;
+  bias.degree = 0;
+  bias.angle_scale_rad = biased.meta.angle_scale_rad;
+  bias.group_class.assign(static_cast<std::size_t>(biased.net->geometry()->groups()), 0);
+  bias.x_um = {{0.01}};
+  bias.y_um = {{-0.01}};
+  setSpotBias(biased, bias);
+  const HeightCalibration with_bias = calibrateHeightCorrection(biased, moved, 13.0, 60, 2, /*spot_bias_degree=*/2);
+  ASSERT_TRUE(with_bias.spot_bias.has_value());
+  EXPECT_GT(with_bias.spot_bias->spots, 0u);
+  ASSERT_EQ(biased.meta.spot_bias.by_height.size(), 1u);
+  EXPECT_EQ(biased.meta.spot_bias.by_height.front().height_change_um, 13.0);
+  EXPECT_EQ(biased.meta.spot_bias.by_height.front().degree, with_bias.spot_bias->bias.degree);
+  EXPECT_EQ(biased.meta.spot_bias.x_um, bias.x_um);
+  EXPECT_EQ(biased.net->geometry()->spotBias().x_um, bias.x_um);  // at the design's height
+  // Fitted again without: the entry's bias change goes with the refit.
+  calibrateHeightCorrection(biased, moved, 13.0, 60, 2);
+  EXPECT_TRUE(biased.meta.spot_bias.by_height.empty());
 }
 
 TEST(UnitCalibration, HeightCorrectionsInterpolateBetweenTheirHeights) {
