@@ -359,6 +359,15 @@ TEST(UnitCalibration, HeightCorrectionsInterpolateBetweenTheirHeights) {
   EXPECT_NEAR(UnitAngleCorrection(design, entries, 15.0).bias(0, 0)[1], -1.25e-3, 1e-15);
 }
 
+// The spot-bias class of each group of the head (its apertures' summed flux).
+std::vector<int> groupClasses(const SensorGeometryImpl& geometry) {
+  std::vector<double> flux(static_cast<std::size_t>(geometry.groups()), 0.0);
+  for (int k = 0; k < geometry.apertures(); ++k)
+    flux[static_cast<std::size_t>(geometry.aperture_group[k].item<std::int64_t>())] +=
+        geometry.aperture_flux[k].item<double>();
+  return spotBiasClasses(flux);
+}
+
 // Images of 3 x 3 clusters of sites about each group's spot through the
 // model's geometry (its spot bias included) moved by offset_um(group, alpha,
 // beta), whose weighted centroid is that spot, at random angles within
@@ -410,13 +419,8 @@ TEST(SpotBias, IsFittedAndKeepsAUnitFitOfTheDesignWhereItIs) {
   const SensorConfig design = drawRandomMask(drawnDesign(41), mask, 43).config;
   Model with_bias = untrainedModel(design), without = untrainedModel(design);
   const auto& geometry = *with_bias.net->geometry();
-  const int groups = geometry.groups();
   const double scale = with_bias.meta.angle_scale_rad;
-  std::vector<double> flux(static_cast<std::size_t>(groups), 0.0);
-  for (int k = 0; k < geometry.apertures(); ++k)
-    flux[static_cast<std::size_t>(geometry.aperture_group[k].item<std::int64_t>())] +=
-        geometry.aperture_flux[k].item<double>();
-  const std::vector<int> classes = spotBiasClasses(flux);
+  const std::vector<int> classes = groupClasses(geometry);
   auto knownBias = [&](int g, double alpha, double beta) {
     const double c = 1.0 + classes[static_cast<std::size_t>(g)];
     const double a = alpha / scale, b = beta / scale;
@@ -501,11 +505,7 @@ TEST(SpotBias, FollowsTheMaskHeight) {
   Model model = untrainedModel(design);
   auto& geometry = *model.net->geometry();
   const double scale = model.meta.angle_scale_rad;
-  std::vector<double> flux(static_cast<std::size_t>(geometry.groups()), 0.0);
-  for (int k = 0; k < geometry.apertures(); ++k)
-    flux[static_cast<std::size_t>(geometry.aperture_group[k].item<std::int64_t>())] +=
-        geometry.aperture_flux[k].item<double>();
-  const std::vector<int> classes = spotBiasClasses(flux);
+  const std::vector<int> classes = groupClasses(geometry);
   auto designBias = [&](int g, double alpha, double beta) {
     const double c = 1.0 + classes[static_cast<std::size_t>(g)];
     return Eigen::Vector2d(0.02 * c + 0.05 * alpha / scale, -0.01 * c * beta / scale);
