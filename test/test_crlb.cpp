@@ -12,6 +12,7 @@
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/eval/crlb.h"
 #include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/sensor_instance.h"
 
 namespace dss {
 namespace {
@@ -122,6 +123,32 @@ TEST(Crlb, ThresholdCensoringLosesInformation) {
               std::sqrt(raw(0, 0)) * 180 / 3.14159265358979323846, std::sqrt(read(0, 0)) * 180 / 3.14159265358979323846);
   const CrlbCalculator plain(loadSensorConfig(path, {"optics.psf_node_step_deg=3", "threshold.enabled=false"}));
   EXPECT_EQ(plain.covariance(0.01, 0.01), plain.readoutCovariance(0.01, 0.01));
+}
+
+// The bound of a built unit is the one of its own geometry (dss eval
+// --crlb-sensor unit): a unit whose mask sits 0.4 mm higher has the bound of a
+// design that high, its detector's fixed patterns count only through the noise
+// law, and the design drawn without errors keeps the design's bound.
+TEST(Crlb, BuiltUnitHasTheBoundOfItsGeometry) {
+  const auto path = std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_sa.yaml";
+  const SensorConfig design = loadSensorConfig(path, {"optics.psf_node_step_deg=3"});
+  const Eigen::Matrix2d nominal = CrlbCalculator(design).readoutCovariance(0.01, 0.01);
+  EXPECT_EQ(CrlbCalculator(SensorInstance::nominalOf(design)).readoutCovariance(0.01, 0.01), nominal);
+
+  SensorInstance unit = SensorInstance::nominalOf(design);
+  unit.mask_offset_um.z() = 400.0;
+  const Eigen::Matrix2d built = CrlbCalculator(unit).readoutCovariance(0.01, 0.01);
+  const double height_mm = design.mask.height_mm + 0.4;
+  const Eigen::Matrix2d higher =
+      CrlbCalculator(loadSensorConfig(path, {"optics.psf_node_step_deg=3", "mask.height_mm=" + std::to_string(height_mm)}))
+          .readoutCovariance(0.01, 0.01);
+  ASSERT_TRUE(built.allFinite());
+  EXPECT_LT(built(0, 0), 0.95 * nominal(0, 0));  // the spot moves further per degree
+  EXPECT_NEAR(built(0, 0) / higher(0, 0), 1.0, 0.02);
+  EXPECT_NEAR(built(1, 1) / higher(1, 1), 1.0, 0.02);
+
+  unit.prnu_gain.assign(static_cast<std::size_t>(design.detector.width_px) * design.detector.height_px, 1.5f);
+  EXPECT_EQ(CrlbCalculator(unit).readoutCovariance(0.01, 0.01), built);
 }
 
 }  // namespace

@@ -22,13 +22,13 @@ namespace {
 // valid estimate, on `threads` threads. The spacing runs over every image,
 // not over the valid ones, so that two estimators evaluated on the same bag
 // are held to bounds on the same images (less the ones each declines).
-void computeBounds(std::vector<EvalRecord>& records, const SensorConfig& config, std::size_t max_samples, int threads) {
+void computeBounds(std::vector<EvalRecord>& records, const CrlbCalculator& crlb, std::size_t max_samples,
+                   int threads) {
   if (max_samples == 0 || records.empty()) return;
   const std::size_t stride = std::max<std::size_t>(1, (records.size() + max_samples - 1) / max_samples);
   std::vector<std::size_t> picked;
   for (std::size_t i = 0; i < records.size(); i += stride)
     if (records[i].estimate.valid) picked.push_back(i);
-  const CrlbCalculator crlb(config);
   Progress progress("eval: crlb", picked.size());
   std::atomic<std::size_t> next{0}, done{0};
   // Takes the next record; false when none is left.
@@ -95,6 +95,10 @@ int runEval(int argc, char** argv) {
                  "0", false, false},
                 {"crlb-samples", "N", "Cramer-Rao bound on N evenly spaced images, those answered (0: skip)", "200",
                  false, false},
+                {"crlb-sensor", "design|unit",
+                 "the sensor the bound is of: the design, or the one unit a bag of a built unit was drawn as "
+                 "(dss generate --anomalies as_built=K; its mask pose and apertures)",
+                 "design", false, false},
                 {"batch", "B", "images per estimator call", "16", false, false},
                 {"max-images", "N", "evaluate at most N images (0: all)", "0", false, false},
                 {"threads", "T", "threads for the bound", threads, false, false},
@@ -115,6 +119,13 @@ int runEval(int argc, char** argv) {
   }
   sparse::configureThreads(1, 1);  // per-image inference is fastest single-threaded (README)
   const DatasetBagReader reader(args.all("data"));
+  const std::string crlb_sensor = args.get("crlb-sensor");
+  if (crlb_sensor != "design" && crlb_sensor != "unit")
+    throw UsageError("dss eval: --crlb-sensor must be design or unit (got '" + crlb_sensor + "')");
+  const std::size_t crlb_samples = static_cast<std::size_t>(args.getInt("crlb-samples"));
+  // Drawn before the images are read, so that a bag of several sensors is refused at once.
+  std::optional<SensorInstance> crlb_unit;
+  if (crlb_sensor == "unit" && crlb_samples > 0) crlb_unit = drawnSensorFromBagInfo(reader);
   std::unique_ptr<SunEstimator> estimator;
   try {
     estimator = makeEstimator(args.get("estimator"), nullptr, estimator_options);
@@ -178,9 +189,12 @@ int runEval(int argc, char** argv) {
   if (records.empty()) throw std::runtime_error("no image/truth pairs in the data");
 
   // The bound needs the sensor that rendered the data: the bag's own config when it has one.
-  const std::optional<SensorConfig> rendered = sensorFromBagInfo(reader);
-  computeBounds(records, rendered ? *rendered : sensor, static_cast<std::size_t>(args.getInt("crlb-samples")),
-                static_cast<int>(args.getInt("threads")));
+  if (crlb_samples > 0) {
+    const std::optional<SensorConfig> rendered = sensorFromBagInfo(reader);
+    const CrlbCalculator crlb =
+        crlb_unit ? CrlbCalculator(*crlb_unit) : CrlbCalculator(rendered ? *rendered : sensor);
+    computeBounds(records, crlb, crlb_samples, static_cast<int>(args.getInt("threads")));
+  }
 
   const EvalSummary summary = summarize(records, estimator->source(), estimator_ms);
   if (args.has("csv")) {

@@ -48,8 +48,15 @@ Eigen::MatrixXd fisherInformation(const cv::Mat& mean, const std::vector<cv::Mat
   return fisher;
 }
 
-CrlbCalculator::CrlbCalculator(const SensorConfig& config) : noise_(config) {
-  renderer_ = std::make_unique<Renderer>(SensorInstance::nominalOf(config));
+CrlbCalculator::CrlbCalculator(const SensorConfig& config) : CrlbCalculator(SensorInstance::nominalOf(config)) {}
+
+CrlbCalculator::CrlbCalculator(const SensorInstance& unit) : noise_(unit.config) {
+  SensorInstance geometry = unit;
+  geometry.prnu_gain.clear();
+  geometry.dark_scale.clear();
+  geometry.hot_pixels.clear();
+  renderer_ = std::make_unique<Renderer>(geometry);
+  const SensorConfig& config = unit.config;
   const auto& n = config.noise;
   const double step_e = n.adc_full_scale_e / config.maxCode();
   dark_e_per_s_ = n.darkCurrentAtTemperatureEPerS();

@@ -8,6 +8,7 @@
 
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/common/yaml_reader.h"
+#include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
@@ -34,6 +35,15 @@ int instancesFromBagInfo(const DatasetBagReader& reader) {
   } catch (const std::exception&) {
     return 1;
   }
+}
+
+SensorInstance drawnSensorFromBagInfo(const DatasetBagReader& reader) {
+  const std::optional<SensorConfig> config = sensorFromBagInfo(reader);
+  const YAML::Node info = reader.infoYaml() ? loadYaml(*reader.infoYaml(), "the bag's dataset_info") : YAML::Node();
+  if (!config || !info["seed"]) throw std::runtime_error("the bag records no dataset_info with its sensor and seed");
+  if (const int instances = instancesFromBagInfo(reader); instances != 1)
+    throw std::runtime_error("the bag was rendered from " + std::to_string(instances) + " sensor instances, not one");
+  return SensorInstance::draw(*config, DatasetGenerator::instanceSeed(info["seed"].as<std::uint64_t>(), 0));
 }
 
 void checkImageFitsSensor(const LabelledImage& item, const SensorConfig& config) {

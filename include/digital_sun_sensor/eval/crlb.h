@@ -38,6 +38,9 @@ class CrlbCalculator {
  public:
   // The nominal sensor of `config` without per-image anomalies.
   explicit CrlbCalculator(const SensorConfig& config);
+  // One drawn sensor (a built unit): its mask pose and apertures as built,
+  // its detector uniform (fixed patterns are in the noise law's PRNU term).
+  explicit CrlbCalculator(const SensorInstance& unit);
   ~CrlbCalculator();
 
   // Bound on the covariance of (alpha, beta) [rad^2] at a sun direction;

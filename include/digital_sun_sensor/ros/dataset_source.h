@@ -16,6 +16,10 @@ namespace dss {
 std::optional<SensorConfig> sensorFromBagInfo(const DatasetBagReader& reader);
 // Sensor instances the bag was rendered from (1 when not recorded).
 int instancesFromBagInfo(const DatasetBagReader& reader);
+// The one sensor a `dss generate` bag was rendered from, drawn again from its
+// seed (a built unit: --anomalies as_built=K); std::runtime_error when the bag
+// records no dataset_info or several sensors.
+SensorInstance drawnSensorFromBagInfo(const DatasetBagReader& reader);
 
 // Throws std::runtime_error naming the bag, the image and both sizes when an
 // image does not fit the sensor.
