@@ -209,11 +209,11 @@ TEST(ShippedModels, ThesisSaFamily) { expectHeadline("thesis_sa_family", 400); }
 TEST(ShippedModels, ThesisMaFamily) { expectHeadline("thesis_ma_family", 400); }
 TEST(ShippedModels, WideMaFamily) { expectHeadline("wide_ma_family", 300); }
 
-// wide_ma's head publishes nothing the backbone's features reach (angles
-// from the spots and the aperture code, the class from the position, a
-// constant sigma), nor do the family models' geometric heads as created
-// (feature corrections of zero weight, sigma from the lit sites or a
-// constant): inference skips the backbone and publishes the same to the bit.
+// The geometric heads as created (wide_ma's and the family models') publish
+// nothing the backbone's features reach (angles from the spots through the
+// geometry, the class from the position, feature corrections of zero
+// weight, sigma from the lit sites or a constant): inference skips the
+// backbone and publishes the same to the bit.
 // thesis_ca's pattern head never runs the network; the other shipped models
 // run their backbones.
 TEST(ShippedModels, BackboneRunsOnlyWhereWhatIsPublishedReadsIt) {
