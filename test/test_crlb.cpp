@@ -138,10 +138,9 @@ TEST(Crlb, BuiltUnitHasTheBoundOfItsGeometry) {
   SensorInstance unit = SensorInstance::nominalOf(design);
   unit.mask_offset_um.z() = 400.0;
   const Eigen::Matrix2d built = CrlbCalculator(unit).readoutCovariance(0.01, 0.01);
-  const double height_mm = design.mask.height_mm + 0.4;
+  const std::string height = "mask.height_mm=" + std::to_string(design.mask.height_mm + 0.4);
   const Eigen::Matrix2d higher =
-      CrlbCalculator(loadSensorConfig(path, {"optics.psf_node_step_deg=3", "mask.height_mm=" + std::to_string(height_mm)}))
-          .readoutCovariance(0.01, 0.01);
+      CrlbCalculator(loadSensorConfig(path, {"optics.psf_node_step_deg=3", height})).readoutCovariance(0.01, 0.01);
   ASSERT_TRUE(built.allFinite());
   EXPECT_LT(built(0, 0), 0.95 * nominal(0, 0));  // the spot moves further per degree
   EXPECT_NEAR(built(0, 0) / higher(0, 0), 1.0, 0.02);

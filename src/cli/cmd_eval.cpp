@@ -22,8 +22,7 @@ namespace {
 // valid estimate, on `threads` threads. The spacing runs over every image,
 // not over the valid ones, so that two estimators evaluated on the same bag
 // are held to bounds on the same images (less the ones each declines).
-void computeBounds(std::vector<EvalRecord>& records, const CrlbCalculator& crlb, std::size_t max_samples,
-                   int threads) {
+void computeBounds(std::vector<EvalRecord>& records, const CrlbCalculator& crlb, std::size_t max_samples, int threads) {
   if (max_samples == 0 || records.empty()) return;
   const std::size_t stride = std::max<std::size_t>(1, (records.size() + max_samples - 1) / max_samples);
   std::vector<std::size_t> picked;
@@ -191,8 +190,7 @@ int runEval(int argc, char** argv) {
   // The bound needs the sensor that rendered the data: the bag's own config when it has one.
   if (crlb_samples > 0) {
     const std::optional<SensorConfig> rendered = sensorFromBagInfo(reader);
-    const CrlbCalculator crlb =
-        crlb_unit ? CrlbCalculator(*crlb_unit) : CrlbCalculator(rendered ? *rendered : sensor);
+    const CrlbCalculator crlb = crlb_unit ? CrlbCalculator(*crlb_unit) : CrlbCalculator(rendered ? *rendered : sensor);
     computeBounds(records, crlb, crlb_samples, static_cast<int>(args.getInt("threads")));
   }
 
