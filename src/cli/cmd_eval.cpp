@@ -116,11 +116,11 @@ int runEval(int argc, char** argv) {
   } catch (const std::invalid_argument& e) {
     throw UsageError(std::string("dss eval: --symmetry: ") + e.what());
   }
-  sparse::configureThreads(1, 1);  // per-image inference is fastest single-threaded (README)
-  const DatasetBagReader reader(args.all("data"));
   const std::string crlb_sensor = args.get("crlb-sensor");
   if (crlb_sensor != "design" && crlb_sensor != "unit")
     throw UsageError("dss eval: --crlb-sensor must be design or unit (got '" + crlb_sensor + "')");
+  sparse::configureThreads(1, 1);  // per-image inference is fastest single-threaded (README)
+  const DatasetBagReader reader(args.all("data"));
   const std::size_t crlb_samples = static_cast<std::size_t>(args.getInt("crlb-samples"));
   // Drawn before the images are read, so that a bag of several sensors is refused at once.
   std::optional<SensorInstance> crlb_unit;
