@@ -458,6 +458,11 @@ TEST(Baseline, BadBagsGetClearErrors) {
                 .code,
             0);
   ASSERT_EQ(run("calibrate --data " + good + " --out " + calib).code, 0);
+  const std::string two_units = tmp("two_units.bag");
+  ASSERT_EQ(run("generate --sensor " + kSensor +
+                " --count 2 --instances 2 --seed 3 --set optics.psf_node_step_deg=3 --out " + two_units)
+                .code,
+            0);
 
   for (const auto& bag : {empty, junk, cut}) {
     const auto r = run("eval --data " + bag + " --estimator centroid:" + calib);
@@ -473,6 +478,10 @@ TEST(Baseline, BadBagsGetClearErrors) {
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.output.find("is 256x256 mono8 but the sensor 'thesis_sa' is 512x512 mono8"), std::string::npos)
       << r.output;
+  // The bound of "the" unit needs a bag of one unit.
+  r = run("eval --data " + two_units + " --estimator centroid:" + calib + " --crlb-sensor unit");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.output.find("rendered from 2 sensor instances, not one"), std::string::npos) << r.output;
   r = run("eval --data " + good + " --estimator centroid:/nonexistent/calib.yaml");
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.output.find("/nonexistent/calib.yaml"), std::string::npos) << r.output;
@@ -489,7 +498,7 @@ TEST(Baseline, BadBagsGetClearErrors) {
   EXPECT_NE(r.output.find("has no geometric head"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("models/thesis_sa_family.dssmodel"), std::string::npos) << r.output;  // where to go instead
   EXPECT_FALSE(exists(tmp("never.dssmodel")));
-  for (const auto& f : {empty, junk, good, cut, other, small, calib}) std::remove(f.c_str());
+  for (const auto& f : {empty, junk, good, cut, other, small, calib, two_units}) std::remove(f.c_str());
 }
 
 // The JSON line carries each key with a positive number.
