@@ -13,6 +13,7 @@
 #include "digital_sun_sensor/model/geometric_head.h"
 #include "digital_sun_sensor/model/geometry_design.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/physics_prior.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/model/sscnn_estimator.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
@@ -347,15 +348,14 @@ TEST(GeometricHead, LoneSpotOfAperturesOfDifferentSizesIsAmbiguous) {
       const Eigen::Vector2d centre(spots[0][k][0].item<double>(), spots[0][k][1].item<double>());
       if (std::abs(centre.x()) > half_w || std::abs(centre.y()) > half_h) continue;
       if (whole++ == 0) addSpot(sites, centre, 1.0, config, 0);  // image 0: the first whole spot alone
-      addSpot(sites, centre, 1.0, config, 1);                     // image 1: every whole spot
+      addSpot(sites, centre, 1.0, config, 1);                    // image 1: every whole spot
     }
     ASSERT_GE(whole, 2) << "spread " << spread;
     auto options = optionsFor(config);
     options.gate_um = geometricGateUm(config, design);
     options.search_reference = true;
-    const auto solution =
-        solveGeometry(*geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight),
-                      torch::tensor(sites.index), 2, torch::zeros({2, 2}, torch::kFloat64), options);
+    const auto solution = solveGeometry(*geometry, tensorOf(sites.xy_um).view({-1, 2}), tensorOf(sites.weight),
+                                        torch::tensor(sites.index), 2, torch::zeros({2, 2}, torch::kFloat64), options);
     EXPECT_EQ(solution.lone_spot_ambiguous[0].item<bool>(), spread > 0.0) << "spread " << spread;
     EXPECT_FALSE(solution.lone_spot_ambiguous[1].item<bool>()) << "spread " << spread;
     EXPECT_NEAR(solution.angles_rad[1][0].item<double>(), alpha, 1e-9);
@@ -588,6 +588,29 @@ TEST(GeometricHead, CodedLatticeKeepsItsCodeAsTheCoarseEstimate) {
     EXPECT_LT(std::abs(estimates[k].beta_rad - truths[k].beta_rad) * kDegPerRad, 0.03) << k;
   }
   std::remove(path.c_str());
+}
+
+// The placements a unit's coarse estimate may take reach both edges of the
+// field: its offset moves the lattice centre's spot toward one of them.
+TEST(GeometricHead, UnitPriorReachesBothEdgesOfTheField) {
+  const SensorConfig wide = loadSensorConfig(DSS_SOURCE_DIR "/config/sensors/wide_ma.yaml");
+  const double half_h_px = 0.5 * wide.detector.height_px, edge_rad = 1.1 * wide.fov.beta_max_deg * kRadPerDeg;
+  const double scale_rad = degToRad(60.0);
+  const GeometricPrior design = geometricPrior(wide, 9, scale_rad);
+  for (const double offset_um : {40.0, -40.0}) {
+    MaskGeometry unit = MaskGeometry::nominalOf(wide);
+    unit.offset_y_um = offset_um;
+    const GeometricPrior prior = geometricPrior(wide, unit, 9, scale_rad);
+    EXPECT_DOUBLE_EQ(prior.extent_x, design.extent_x) << offset_um;
+    EXPECT_GT(prior.extent_y, design.extent_y) << offset_um;
+    for (const double beta_rad : {edge_rad, -edge_rad}) {
+      MaskGeometry centre = unit;
+      centre.apertures_um = {Eigen::Vector2d::Zero()};
+      const auto spot = centre.spotPx(0, sunVectorFromAngles(0.0, beta_rad));
+      ASSERT_TRUE(spot);
+      EXPECT_GE(prior.extent_y * half_h_px, std::abs(spot->y()) - 1e-9) << offset_um << " um, " << beta_rad << " rad";
+    }
+  }
 }
 
 }  // namespace

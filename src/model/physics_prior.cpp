@@ -37,12 +37,22 @@ GeometricPrior geometricPrior(const SensorConfig& config, const MaskGeometry& un
   centre.apertures_um = {Eigen::Vector2d::Zero()};
   centre.aperture_diameters_um.resize(1);
   const double half_w = 0.5 * config.detector.width_px, half_h = 0.5 * config.detector.height_px;
-  const auto edge_x = centre.spotPx(0, sunVectorFromAngles(1.1 * config.fov.alpha_max_deg * kRadPerDeg, 0.0));
-  const auto edge_y = centre.spotPx(0, sunVectorFromAngles(0.0, 1.1 * config.fov.beta_max_deg * kRadPerDeg));
-  if (!edge_x || !edge_y) throw ModelError("geometric prior: no ray reaches the detector at the edge of the field");
+  // The farther of the field's two edges per axis: a unit's offset moves the
+  // lattice centre's spot toward one of them (a 3x wide_ma unit 40 um off
+  // along +y, its extent taken at the +beta edge alone, declined 3-11 % of
+  // its images near the -beta edge ambiguous_aperture: the true placement
+  // lay outside the allowed shift).
   GeometricPrior prior;
-  prior.extent_x = std::abs(edge_x->x()) / half_w;
-  prior.extent_y = std::abs(edge_y->y()) / half_h;
+  prior.extent_x = prior.extent_y = 0.0;
+  for (const int sign : {1, -1}) {
+    const double a = sign * 1.1 * config.fov.alpha_max_deg * kRadPerDeg;
+    const double b = sign * 1.1 * config.fov.beta_max_deg * kRadPerDeg;
+    const auto edge_x = centre.spotPx(0, sunVectorFromAngles(a, 0.0));
+    const auto edge_y = centre.spotPx(0, sunVectorFromAngles(0.0, b));
+    if (!edge_x || !edge_y) throw ModelError("geometric prior: no ray reaches the detector at the edge of the field");
+    prior.extent_x = std::max(prior.extent_x, std::abs(edge_x->x()) / half_w);
+    prior.extent_y = std::max(prior.extent_y, std::abs(edge_y->y()) / half_h);
+  }
   prior.table = torch::zeros({2, size, size}, torch::kFloat);
   auto t = prior.table.accessor<float, 3>();
   const int mid = size / 2;
