@@ -613,5 +613,31 @@ TEST(GeometricHead, UnitPriorReachesBothEdgesOfTheField) {
   }
 }
 
+// The prior follows the head's geometry: a raised mask widens it
+// (calibrate-height's moved design: its spots at the field's edge lie
+// farther out), and the copy restores it exactly.
+TEST(GeometricHead, PriorFollowsTheHeadsGeometry) {
+  const SensorConfig wide = loadSensorConfig(DSS_SOURCE_DIR "/config/sensors/wide_ma.yaml");
+  HeadOptions geometric;
+  geometric.head = "geometric";
+  Model model = createModel(wide, archPreset("resnet10_w16", wide.numSubFovClasses()), 1, geometric);
+  ASSERT_GT(model.meta.arch.geometric_prior_size, 0);
+  const auto [table, extent_x, extent_y] = model.net->geometricPriorCopy();
+  ASSERT_TRUE(table.defined());
+  MaskGeometry raised = model.net->geometry()->maskGeometry();
+  raised.height_um += 30.0;
+  setHeadGeometry(model, raised);
+  EXPECT_EQ(model.net->geometry()->maskGeometry().height_um, raised.height_um);
+  const auto [raised_table, raised_x, raised_y] = model.net->geometricPriorCopy();
+  EXPECT_GT(raised_x, extent_x);
+  EXPECT_GT(raised_y, extent_y);
+  EXPECT_FALSE(torch::equal(raised_table, table));
+  model.net->initGeometricPrior(table, extent_x, extent_y);
+  const auto [restored, restored_x, restored_y] = model.net->geometricPriorCopy();
+  EXPECT_TRUE(torch::equal(restored, table));
+  EXPECT_EQ(restored_x, extent_x);
+  EXPECT_EQ(restored_y, extent_y);
+}
+
 }  // namespace
 }  // namespace dss

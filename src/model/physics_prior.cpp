@@ -6,6 +6,8 @@
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/metadata.h"
+#include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sscnn.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
@@ -75,6 +77,14 @@ GeometricPrior geometricPrior(const SensorConfig& config, const MaskGeometry& un
       }
     }
   return prior;
+}
+
+void setHeadGeometry(Model& model, const MaskGeometry& mask) {
+  model.net->geometry()->setMaskGeometry(mask);
+  if (model.meta.arch.geometric_prior_size <= 0) return;
+  const GeometricPrior prior = geometricPrior(parseSensorConfig(model.meta.sensor_yaml, "the model's sensor"), mask,
+                                              model.meta.arch.geometric_prior_size, model.meta.angle_scale_rad);
+  model.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
 }
 
 }  // namespace dss

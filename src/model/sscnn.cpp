@@ -142,6 +142,12 @@ void SscnnNetImpl::initGeometricPrior(const torch::Tensor& table, double extent_
   geometric_prior_extent_[1] = extent_y;
 }
 
+std::tuple<torch::Tensor, double, double> SscnnNetImpl::geometricPriorCopy() const {
+  if (!geometric_prior_.defined()) return {torch::Tensor(), 1.0, 1.0};
+  return {geometric_prior_.squeeze(0).clone(), geometric_prior_extent_[0].item<double>(),
+          geometric_prior_extent_[1].item<double>()};
+}
+
 void SscnnNetImpl::initGeometry(const GeometryDesign& design) {
   if (geometry_) geometry_->setDesign(design);
 }

@@ -421,19 +421,13 @@ UnitCalibrationReport fitUnitGeometry(Model& model, const std::vector<UnitImage>
   report.standard_errors = GeometryFit::standardErrors(covariance);
   report.geometry_sigma_rad = geometrySigma(fine, p, covariance, design, images, targets, solve);
   const MaskGeometry fitted_mask = fine.apply(p);
-  geometry.setMaskGeometry(fitted_mask);
+  setHeadGeometry(model, fitted_mask);
   // Each aperture's position variance (its prior included), for the solve's weights.
   const std::vector<double> variance_um2 = fine.apertureVariances(p, inliers);
   model.meta.aperture_variance_um2 = variance_um2;
   model.meta.spot_noise_um2 = fine.residualVariance(p, inliers) * weight_unit;
   geometry.setPositionVariance(model.meta.aperture_variance_um2, model.meta.spot_noise_um2);
   for (double v : variance_um2) report.aperture_sigma_um.push_back(std::sqrt(v));
-  if (model.meta.arch.geometric_prior_size > 0) {
-    const GeometricPrior prior =
-        geometricPrior(parseSensorConfig(model.meta.sensor_yaml, what + " (the model's sensor)"), fitted_mask,
-                       model.meta.arch.geometric_prior_size, model.meta.angle_scale_rad);
-    model.net->initGeometricPrior(prior.table, prior.extent_x, prior.extent_y);
-  }
   model.meta.geometry_sigma_rad = report.geometry_sigma_rad;
   report.after = geometry.maskGeometry();
   return report;

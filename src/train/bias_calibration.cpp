@@ -10,6 +10,7 @@
 
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/physics_prior.h"
 #include "digital_sun_sensor/model/sscnn.h"
 #include "digital_sun_sensor/model/unit_calibration.h"
 #include "held_out.h"
@@ -165,15 +166,19 @@ HeightCalibration calibrateHeightCorrection(Model& model, const TrainingSet& dat
   moved.height_um += height_change_um;
   const AngleCorrection base = model.meta.angle_correction;
   const std::string metrics = model.meta.metrics_yaml;
+  // The design's prior as the model holds it (computed through the head's
+  // geometry it differs slightly from the one the model was created with).
+  const auto [prior_table, prior_extent_x, prior_extent_y] = model.net->geometricPriorCopy();
   auto restore = [&] {
     geometry->setMaskGeometry(design);
+    if (prior_table.defined()) model.net->initGeometricPrior(prior_table, prior_extent_x, prior_extent_y);
     model.meta.angle_correction = base;
     model.meta.metrics_yaml = metrics;
     model.meta.height_corrections = entries;
     setSpotBias(model, bias);
   };
   setSpotBias(model, design_bias);
-  geometry->setMaskGeometry(moved);
+  setHeadGeometry(model, moved);  // the prior too: the moved spots at the field's edge lie past the design's extent
   HeightCalibration c;
   try {
     c.correction = calibrateBias(model, data, max_samples, max_degree, /*add_to_model_correction=*/true);

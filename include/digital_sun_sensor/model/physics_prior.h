@@ -12,6 +12,7 @@
 namespace dss {
 
 struct MaskGeometry;
+struct Model;
 
 // d(angle / angle_scale) / d(normalized centroid) per axis of the nominal
 // sensor (pinhole + refraction), by central differences at normal incidence;
@@ -32,5 +33,12 @@ GeometricPrior geometricPrior(const SensorConfig& config, int size, double angle
 // estimate and the lattice placements the field of view allows follow the
 // unit (a 3x wide_ma unit's spots at 60 deg lie past the design's extent).
 GeometricPrior geometricPrior(const SensorConfig& config, const MaskGeometry& unit, int size, double angle_scale_rad);
+
+// Sets a geometric head's mask geometry and, where the model has a geometric
+// prior, the prior through it, so that the coarse estimate and the lattice
+// placements follow the geometry (calibrate-unit's fit; calibrate-height's
+// moved design, whose spots at the field's edge lie past the design's
+// extent). Throws ModelError on a sensor config the model does not parse.
+void setHeadGeometry(Model& model, const MaskGeometry& mask);
 
 }  // namespace dss

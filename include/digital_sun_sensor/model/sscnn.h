@@ -12,6 +12,7 @@
 
 #include <array>
 #include <optional>
+#include <tuple>
 #include <vector>
 
 #include "digital_sun_sensor/model/arch.h"
@@ -91,6 +92,8 @@ class SscnnNetImpl : public torch::nn::Module {
   // position) per axis, read by Catmull-Rom interpolation instead of the linear
   // prior (no-op unless arch.geometric_prior_size > 0).
   void initGeometricPrior(const torch::Tensor& table, double extent_x, double extent_y);
+  // A copy of that table and its extents (an undefined table without one).
+  std::tuple<torch::Tensor, double, double> geometricPriorCopy() const;
   // Geometric head: the sensor's nominal geometry (no-op for other heads).
   void initGeometry(const GeometryDesign& design);
   // Pattern head: the whole-pattern estimator of the sensor's design (renders
