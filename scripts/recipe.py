@@ -21,10 +21,12 @@ Keys:
                     fitted after the correction (and its change per calibrate_height entry); nominal_bags: the sigma bags without anomalies,
                     on which alone the angle correction, sigma and the spot-mismatch level are
                     fitted (default: all); the others widen the input envelope only
-  calibrate_height  {changes_um: [H, ...], count, seed} (optional, geometric head): per H, COUNT
-                    images of the design with its mask H um higher (lower: the cover glass, if
-                    thicker, as thick as the mask is high), seeds SEED, SEED + 1, ...; dss
-                    calibrate-height fits how the angle correction changes with the height
+  calibrate_height  {changes_um: [H, ...], count, seed, [noise_free]} (optional, geometric head): per
+                    H, COUNT images of the design with its mask H um higher (lower: the cover glass,
+                    if thicker, as thick as the mask is high), seeds SEED, SEED + 1, ...; dss
+                    calibrate-height fits how the angle correction changes with the height; with
+                    noise_free: true the images are rendered without detector noise (the change is
+                    the optics', and noise in its fit is error at every unit of that height)
   baseline          centroid (default: dss calibrate on the first training bag), pattern (the
                     whole-pattern estimator of the sensor's design, for masks whose spots merge) or
                     none (a family model: the sensor's own recipe ships its baseline)
@@ -80,17 +82,28 @@ def height_sets(sensor_path, change_um, fail_with):
     return sets
 
 
+# dss generate --set overrides that render a sensor without detector noise (quantisation stays).
+NOISE_FREE_SETS = ["detector_noise.shot_noise=false", "detector_noise.read_noise_e=0",
+                   "detector_noise.dark_current_e_per_s=0", "detector_noise.dsnu_fraction=0",
+                   "detector_noise.prnu_fraction=0"]
+
+
 def height_bags(path, node, sensor_path):
     """CHANGE_UM=BAG entries: BAG as bag() prints it, with its --set overrides after a seventh colon."""
-    check(path, "calibrate_height", node, ("changes_um", "count", "seed"))
+    check(path, "calibrate_height", node, ("changes_um", "count", "seed"), ("noise_free",))
+    noise_free = node.get("noise_free", False)
+    if not isinstance(noise_free, bool):
+        fail(path, "calibrate_height.noise_free", "must be true or false")
     entries = []
     for k, change in enumerate(node["changes_um"]):
         where = "calibrate_height.changes_um[%d]" % k
         if not isinstance(change, (int, float)) or change == 0:
             fail(path, where, "must be a non-zero number of um")
         sets = height_sets(sensor_path, change, lambda why: fail(path, where, why))
-        spec = bag(path, "calibrate_height", {"name": "height%g" % change, "count": node["count"],
-                                              "seed": node["seed"] + k})
+        if noise_free:
+            sets += NOISE_FREE_SETS
+        spec = bag(path, "calibrate_height", {"name": "height%g%s" % (change, ".noise_free" if noise_free else ""),
+                                              "count": node["count"], "seed": node["seed"] + k})
         entries.append("%g=%s:%s" % (change, spec, ",".join(sets)))
     return " ".join(entries)
 
