@@ -62,6 +62,44 @@ SensorConfig* PatternSolveTest::config_ = nullptr;
 PatternSolver* PatternSolveTest::solver_ = nullptr;
 Renderer* PatternSolveTest::renderer_ = nullptr;
 
+// The template as the detector sees it at a shift: at zero shift each pixel
+// reads the rendered value under it, a whole pixel's shift moves it by one
+// pixel, and the gradient is the interpolant's own (finite differences of
+// the shift).
+TEST_F(PatternSolveTest, ShiftedTemplateReadsTheRenderAndItsGradient) {
+  const PatternTemplate& pattern = solver_->patternTemplate();
+  const int w = config_->detector.width_px, h = config_->detector.height_px;
+  const double pitch = config_->detector.pitch_um;
+  const int margin = (pattern.sidePx() - w) / 2;
+  const auto at = [&](double shift_x_um, double shift_y_um, int col, int row, double* gx = nullptr,
+                      double* gy = nullptr) {
+    double grad_x, grad_y;
+    const double value = pattern.shifted(w, h, shift_x_um, shift_y_um).at(col, row, grad_x, grad_y);
+    if (gx) *gx = grad_x;
+    if (gy) *gy = grad_y;
+    return value;
+  };
+  int steep = 0;
+  for (int row = 0; row < h; row += 37)
+    for (int col = 0; col < w; col += 41) {
+      EXPECT_EQ(at(0.0, 0.0, col, row), pattern.values().at<double>(row + margin, col + margin));
+      EXPECT_NEAR(at(pitch, -2.0 * pitch, col, row), at(0.0, 0.0, col - 1, row + 2), 1e-12);
+      double gx, gy;
+      const double shift_x = 0.37, shift_y = -0.81, step = 1e-4;
+      at(shift_x, shift_y, col, row, &gx, &gy);
+      // The pattern moves with the shift: d value / d shift = -gradient.
+      const double dx = (at(shift_x + step, shift_y, col, row) - at(shift_x - step, shift_y, col, row)) / (2 * step);
+      const double dy = (at(shift_x, shift_y + step, col, row) - at(shift_x, shift_y - step, col, row)) / (2 * step);
+      EXPECT_NEAR(-dx, gx, 1e-6 + 1e-6 * std::abs(gx));
+      EXPECT_NEAR(-dy, gy, 1e-6 + 1e-6 * std::abs(gy));
+      if (std::abs(gx) > 1e-3) ++steep;
+    }
+  EXPECT_GT(steep, 10);  // the pattern has edges where the pixels were read
+  double gx, gy;
+  EXPECT_EQ(at(0.0, 0.0, -margin - 5, 0, &gx, &gy), 0.0);  // outside the rendered area
+  EXPECT_EQ(gx, 0.0);
+}
+
 // The image at normal incidence is the template, quantised to 8 bits and
 // cut by the threshold: read to 0.00005 deg (0.004 um at the mask height).
 TEST_F(PatternSolveTest, NormalIncidenceIsTheTemplateItself) {

@@ -13,15 +13,19 @@
 
 namespace dss {
 
-// Lit pixels and the dark ones next to them [um from the detector centre,
-// DN], the image's total light and, per search level, its block sums.
+// Lit pixels and the dark ones next to them, the image's total light and,
+// per search level, its block sums [um from the detector centre, DN].
 struct PatternSolver::Pixels {
   struct Pixel {
-    double x, y, value;
+    int col, row;
+    double value;  // [DN]
+  };
+  struct Block {
+    double x_um, y_um, sum;
   };
   std::vector<Pixel> lit, dark;
   double total = 0.0;
-  std::vector<std::vector<Pixel>> blocks;  // per level
+  std::vector<std::vector<Block>> blocks;  // per level
 };
 
 // A block-averaged template above a level (what a lit pixel can lie on),
@@ -64,7 +68,17 @@ PatternSolver::PatternSolver(const SensorConfig& config, PatternSolveOptions opt
     throw std::invalid_argument("pattern solve: the coarse block size must be a multiple of the middle one");
   // Where lit pixels can lie: above 90 % of the threshold's share of the peak.
   const double above = 0.9 * level;
-  for (int factor : {options_.coarse_factor, options_.middle_factor}) {
+  // Block sizes from the coarse one down to the middle one, halving where
+  // the halves divide: the local search then steps through each level,
+  // a few cells around the coarser level's best, not the middle level's
+  // whole reach at once.
+  std::vector<int> factors{options_.coarse_factor};
+  while (factors.back() > options_.middle_factor) {
+    const int half = factors.back() / 2;
+    factors.push_back(half >= options_.middle_factor && half % options_.middle_factor == 0 ? half
+                                                                                           : options_.middle_factor);
+  }
+  for (int factor : factors) {
     Level l;
     l.factor = factor;
     l.side = template_->sidePx() / factor;
@@ -126,7 +140,7 @@ PatternSolver::Pixels PatternSolver::pixelsOf(const cv::Mat& image) const {
     for (int r = 0; r < image.rows; ++r)
       for (int c = 0; c < image.cols; ++c)
         sums[static_cast<std::size_t>((r / f) * bw + c / f)] += value.at<double>(r, c);
-    std::vector<Pixels::Pixel> blocks;
+    std::vector<Pixels::Block> blocks;
     for (int br = 0; br < bh; ++br)
       for (int bc = 0; bc < bw; ++bc) {
         const double s = sums[static_cast<std::size_t>(br * bw + bc)];
@@ -137,7 +151,7 @@ PatternSolver::Pixels PatternSolver::pixelsOf(const cv::Mat& image) const {
   for (int r = 0; r < image.rows; ++r)
     for (int c = 0; c < image.cols; ++c) {
       const double v = value.at<double>(r, c);
-      const Pixels::Pixel p{(c - cx) * pitch, (r - cy) * pitch, v};
+      const Pixels::Pixel p{c, r, v};
       if (v > 0.0) {
         px.lit.push_back(p);
         px.total += v;
@@ -179,8 +193,8 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   for (std::size_t level = 0; level < levels_.size(); ++level) {
     const Level& l = levels_[level];
     for (const auto& b : px.blocks[level])
-      cells[level].push_back({static_cast<int>(std::lround(b.x / l.step_um + l.centre)),
-                              static_cast<int>(std::lround(b.y / l.step_um + l.centre)), b.value});
+      cells[level].push_back({static_cast<int>(std::lround(b.x_um / l.step_um + l.centre)),
+                              static_cast<int>(std::lround(b.y_um / l.step_um + l.centre)), b.sum});
     window_cell[level] = {static_cast<int>(std::lround(-half_w / l.step_um + l.centre + 0.5)),
                           static_cast<int>(std::lround(-half_h / l.step_um + l.centre + 0.5))};
   }
@@ -220,23 +234,26 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   std::sort(peaks.begin(), peaks.end(), [](const Peak& a, const Peak& b) { return a.score > b.score; });
   if (peaks.size() > static_cast<std::size_t>(options_.candidates))
     peaks.resize(static_cast<std::size_t>(options_.candidates));
-  // Each candidate: the best shift of the middle grid around it, then the fit.
-  const Level& middle = levels_[1];
-  const int ratio = coarse.factor / middle.factor, span = ratio + 1;
   std::vector<PatternSolution> fits;
+  // Each candidate: the best shift of each finer level around the coarser
+  // level's best, down to the middle level, then the fit.
   for (const auto& peak : peaks) {
-    int best_u = peak.u * ratio, best_v = peak.v * ratio;
-    double top = -std::numeric_limits<double>::infinity();
-    for (int j = -span; j <= span; ++j)
-      for (int i = -span; i <= span; ++i) {
-        const double value = score(1, peak.u * ratio + i, peak.v * ratio + j);
-        if (value > top) {
-          top = value;
-          best_u = peak.u * ratio + i;
-          best_v = peak.v * ratio + j;
+    int best_u = peak.u, best_v = peak.v;
+    for (std::size_t level = 1; level < levels_.size(); ++level) {
+      const int ratio = levels_[level - 1].factor / levels_[level].factor, span = ratio + 1;
+      const int centre_u = best_u * ratio, centre_v = best_v * ratio;
+      double top = -std::numeric_limits<double>::infinity();
+      for (int j = -span; j <= span; ++j)
+        for (int i = -span; i <= span; ++i) {
+          const double value = score(level, centre_u + i, centre_v + j);
+          if (value > top) {
+            top = value;
+            best_u = centre_u + i;
+            best_v = centre_v + j;
+          }
         }
-      }
-    const Eigen::Vector2d shift = Eigen::Vector2d(best_u, best_v) * middle.step_um;
+    }
+    const Eigen::Vector2d shift = Eigen::Vector2d(best_u, best_v) * levels_.back().step_um;
     const auto solution = fit(px, anglesOfShift(shift), options_.candidate_stride, options_.candidate_iterations);
     if (solution && (!window || window->contains(solution->angles_rad))) fits.push_back(*solution);
   }
@@ -277,10 +294,12 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
   double gain = 0.0;
   {
     const Eigen::Vector2d d = shiftUm(angles);
-    double vp = 0.0, pp = 0.0;
+    const PatternTemplate::Shifted shifted =
+        p.shifted(config_.detector.width_px, config_.detector.height_px, d.x(), d.y());
+    double vp = 0.0, pp = 0.0, gx, gy;
     for (std::size_t i = 0; i < px.lit.size(); i += step_by) {
       const auto& q = px.lit[i];
-      const double t = p.at(q.x - d.x(), q.y - d.y());
+      const double t = shifted.at(q.col, q.row, gx, gy);
       vp += (q.value + offset_) * t;
       pp += t * t;
     }
@@ -294,6 +313,8 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
   bool converged = false;
   for (int it = 0;; ++it) {
     const Eigen::Vector2d d = shiftUm(angles);
+    const PatternTemplate::Shifted shifted =
+        p.shifted(config_.detector.width_px, config_.detector.height_px, d.x(), d.y());
     Eigen::Matrix2d dd;  // d(shift)/d(angles)
     constexpr double kStep = 1e-6;
     for (int axis = 0; axis < 2; ++axis) {
@@ -306,8 +327,8 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     sse = 0.0;
     used = 0;
     auto add = [&](const Pixels::Pixel& q, bool lit) {
-      double gx = 0.0, gy = 0.0;
-      const double t = p.at(q.x - d.x(), q.y - d.y(), &gx, &gy);
+      double gx, gy;
+      const double t = shifted.at(q.col, q.row, gx, gy);
       const double predicted = gain * t - offset_;
       if (!lit && !(predicted > floor_)) return;                // censored: dark, and predicted so
       if (lit && q.value >= top_ && predicted >= top_) return;  // saturated, and predicted so

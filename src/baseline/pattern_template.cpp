@@ -53,29 +53,39 @@ PatternTemplate::PatternTemplate(const SensorConfig& config) {
   values_ /= peak;
 }
 
-double PatternTemplate::at(double x_um, double y_um, double* grad_x, double* grad_y) const {
-  const double u = x_um / pitch_um_ + centre_px_, v = y_um / pitch_um_ + centre_px_;
+PatternTemplate::Shifted PatternTemplate::shifted(int detector_width_px, int detector_height_px, double shift_x_um,
+                                                  double shift_y_um) const {
+  // Pixel (c, r) reads the template at u = c + (centre - (w - 1) / 2) - shift_x / pitch.
+  const double u = centre_px_ - 0.5 * (detector_width_px - 1) - shift_x_um / pitch_um_;
+  const double v = centre_px_ - 0.5 * (detector_height_px - 1) - shift_y_um / pitch_um_;
   const double fu = std::floor(u), fv = std::floor(v);
-  if (!(fu >= 1.0 && fv >= 1.0 && fu + 2.0 < side_px_ && fv + 2.0 < side_px_)) {
-    if (grad_x) *grad_x = 0.0;
-    if (grad_y) *grad_y = 0.0;
+  Shifted s;
+  s.pattern_ = this;
+  s.base_u_ = static_cast<int>(fu);
+  s.base_v_ = static_cast<int>(fv);
+  cubicWeights(u - fu, s.wu_, s.du_);
+  cubicWeights(v - fv, s.wv_, s.dv_);
+  return s;
+}
+
+double PatternTemplate::Shifted::at(int col, int row, double& grad_x, double& grad_y) const {
+  const int iu = col + base_u_, iv = row + base_v_;
+  const int side = pattern_->side_px_;
+  if (iu < 1 || iv < 1 || iu + 2 >= side || iv + 2 >= side) {
+    grad_x = grad_y = 0.0;
     return 0.0;
   }
-  const int iu = static_cast<int>(fu), iv = static_cast<int>(fv);
-  double wu[4], wv[4], du[4], dv[4];
-  cubicWeights(u - fu, wu, du);
-  cubicWeights(v - fv, wv, dv);
   double value = 0.0, gx = 0.0, gy = 0.0;
   for (int j = 0; j < 4; ++j) {
-    const double* row = values_.ptr<double>(iv - 1 + j) + (iu - 1);
-    const double along = wu[0] * row[0] + wu[1] * row[1] + wu[2] * row[2] + wu[3] * row[3];
-    const double slope = du[0] * row[0] + du[1] * row[1] + du[2] * row[2] + du[3] * row[3];
-    value += wv[j] * along;
-    gx += wv[j] * slope;
-    gy += dv[j] * along;
+    const double* r = pattern_->values_.ptr<double>(iv - 1 + j) + (iu - 1);
+    const double along = wu_[0] * r[0] + wu_[1] * r[1] + wu_[2] * r[2] + wu_[3] * r[3];
+    const double slope = du_[0] * r[0] + du_[1] * r[1] + du_[2] * r[2] + du_[3] * r[3];
+    value += wv_[j] * along;
+    gx += wv_[j] * slope;
+    gy += dv_[j] * along;
   }
-  if (grad_x) *grad_x = gx / pitch_um_;
-  if (grad_y) *grad_y = gy / pitch_um_;
+  grad_x = gx / pattern_->pitch_um_;
+  grad_y = gy / pattern_->pitch_um_;
   return value;
 }
 

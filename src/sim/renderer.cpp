@@ -1,6 +1,7 @@
 #include "digital_sun_sensor/sim/renderer.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -37,8 +38,29 @@ void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double c
   const int r0 = std::max(0, static_cast<int>(std::ceil((cy_um + v_lo) / pitch_um + half_h)));
   const int r1 = std::min(h - 1, static_cast<int>(std::floor((cy_um + v_hi) / pitch_um + half_h)));
   if (c1 < c0) return;
-  // Row by row, each map's row and vertical weights once: the same
-  // bilinear lookup as SpotMap::sample, summed over the maps in order.
+  // Each map's columns that fall inside it, and their sample index and
+  // weight, once per splat; then row by row, each map's row and vertical
+  // weights once: the same bilinear lookup as SpotMap::sample, summed over
+  // the maps in order.
+  thread_local std::array<std::vector<int>, 4> sample_col;
+  thread_local std::array<std::vector<float>, 4> sample_fx;
+  std::array<int, 4> first{}, last{};  // [first, last] of columns inside map k, relative to c0
+  for (int k = 0; k < blend.count; ++k) {
+    const SpotMap& m = *blend.maps[k];
+    sample_col[k].assign(static_cast<std::size_t>(c1 - c0 + 1), 0);
+    sample_fx[k].assign(static_cast<std::size_t>(c1 - c0 + 1), 0.0f);
+    first[k] = c1 - c0 + 1;
+    last[k] = -1;
+    for (int c = c0; c <= c1; ++c) {
+      const double x = ((c - half_w) * pitch_um - cx_um - m.u0_um) / m.step_um;
+      if (!(x >= 0.0 && x < m.cols - 1)) continue;
+      const int i = c - c0;
+      first[k] = std::min(first[k], i);
+      last[k] = std::max(last[k], i);
+      sample_col[k][static_cast<std::size_t>(i)] = static_cast<int>(x);
+      sample_fx[k][static_cast<std::size_t>(i)] = static_cast<float>(x - static_cast<int>(x));
+    }
+  }
   thread_local std::vector<float> acc;
   for (int r = r0; r <= r1; ++r) {
     const double v = (r - half_h) * pitch_um - cy_um;
@@ -54,13 +76,13 @@ void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double c
       const float* top = &m.values[static_cast<std::size_t>(mr) * m.cols];
       const float* bottom = top + m.cols;
       const float weight = blend.weights[k];
-      for (int c = c0; c <= c1; ++c) {
-        const double x = ((c - half_w) * pitch_um - cx_um - m.u0_um) / m.step_um;
-        if (!(x >= 0.0 && x < m.cols - 1)) continue;
-        const int mc = static_cast<int>(x);
-        const float fx = static_cast<float>(x - mc);
-        acc[static_cast<std::size_t>(c - c0)] += weight * ((1.0f - fy) * ((1.0f - fx) * top[mc] + fx * top[mc + 1]) +
-                                                           fy * ((1.0f - fx) * bottom[mc] + fx * bottom[mc + 1]));
+      const int* col = sample_col[k].data();
+      const float* frac = sample_fx[k].data();
+      for (int i = first[k]; i <= last[k]; ++i) {
+        const int mc = col[i];
+        const float fx = frac[i];
+        acc[static_cast<std::size_t>(i)] += weight * ((1.0f - fy) * ((1.0f - fx) * top[mc] + fx * top[mc + 1]) +
+                                                      fy * ((1.0f - fx) * bottom[mc] + fx * bottom[mc + 1]));
       }
     }
     if (!any) continue;

@@ -4,7 +4,7 @@
 // template is the design's own noise-free irradiance at normal incidence,
 // rendered by the simulator's optics on a detector large enough to hold
 // every spot and the field's whole shift, normalised to a peak of 1, and
-// read anywhere by bicubic (Catmull-Rom) interpolation with its gradient.
+// read at any shift by bicubic (Catmull-Rom) interpolation with its gradient.
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -20,10 +20,26 @@ class PatternTemplate {
   // the detector size limit.
   explicit PatternTemplate(const SensorConfig& config);
 
-  // Value at (x, y) um from the pattern's centre (the detector centre at
-  // normal incidence) and, when not null, its gradient [1/um]. Outside the
-  // rendered area: 0.
-  double at(double x_um, double y_um, double* grad_x = nullptr, double* grad_y = nullptr) const;
+  // The template as a detector of the template's pitch sees it when the
+  // pattern is shifted by (shift_x, shift_y) um. Every pixel shares one
+  // sub-pixel phase, so the bicubic weights are computed once per shift,
+  // not once per pixel (the pattern solve reads tens of thousands of pixels
+  // per Gauss-Newton iteration).
+  class Shifted {
+   public:
+    // Value at detector pixel (col, row) and its gradient [1/um] with
+    // respect to the position on the detector; outside the rendered area 0.
+    double at(int col, int row, double& grad_x, double& grad_y) const;
+
+   private:
+    friend class PatternTemplate;
+    const PatternTemplate* pattern_ = nullptr;
+    int base_u_ = 0, base_v_ = 0;  // template column, row of the interpolation origin of pixel (0, 0)
+    double wu_[4], wv_[4], du_[4], dv_[4];
+  };
+  // The detector (width x height pixels of the template's pitch) centred
+  // on the pattern's centre at zero shift.
+  Shifted shifted(int detector_width_px, int detector_height_px, double shift_x_um, double shift_y_um) const;
 
   int sidePx() const { return side_px_; }
   double pitchUm() const { return pitch_um_; }
