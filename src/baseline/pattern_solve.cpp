@@ -14,34 +14,31 @@
 namespace dss {
 
 // Lit pixels and the dark ones next to them, the image's total light and,
-// per search level, its block sums [um from the detector centre, DN].
+// per search level, its sums over the level's blocks.
 struct PatternSolver::Pixels {
   struct Pixel {
     int col, row;
     double value;  // [DN]
   };
-  struct Block {
-    double x_um, y_um, sum;
-  };
   std::vector<Pixel> lit, dark;
   double total = 0.0;
-  std::vector<std::vector<Block>> blocks;  // per level
+  std::vector<cv::Mat> block_sums;  // per level, CV_64F, ceil(rows / factor) x ceil(cols / factor)
 };
 
 // A block-averaged template above a level (what a lit pixel can lie on),
 // with its integral image for the light it puts in the detector window.
 struct PatternSolver::Level {
   int factor = 1;
-  int side = 0;
-  double step_um = 1.0, centre = 0.0;
-  cv::Mat values;    // CV_64F side x side
-  cv::Mat integral;  // CV_64F (side + 1)^2
+  int cols = 0, rows = 0;
+  double step_um = 1.0;
+  double centre_u = 0.0, centre_v = 0.0;  // cell whose centre is the template's
+  cv::Mat values;                         // CV_64F rows x cols
+  cv::Mat integral;                       // CV_64F (rows + 1) x (cols + 1)
 
-  double at(int u, int v) const { return u < 0 || v < 0 || u >= side || v >= side ? 0.0 : values.at<double>(v, u); }
   // Sum over template cells [u0, u1) x [v0, v1), clipped to the template.
   double sum(int u0, int v0, int u1, int v1) const {
-    u0 = std::clamp(u0, 0, side), u1 = std::clamp(u1, 0, side);
-    v0 = std::clamp(v0, 0, side), v1 = std::clamp(v1, 0, side);
+    u0 = std::clamp(u0, 0, cols), u1 = std::clamp(u1, 0, cols);
+    v0 = std::clamp(v0, 0, rows), v1 = std::clamp(v1, 0, rows);
     if (u1 <= u0 || v1 <= v0) return 0.0;
     return integral.at<double>(v1, u1) - integral.at<double>(v0, u1) - integral.at<double>(v1, u0) +
            integral.at<double>(v0, u0);
@@ -75,22 +72,32 @@ PatternSolver::PatternSolver(const SensorConfig& config, PatternSolveOptions opt
   std::vector<int> factors{options_.coarse_factor};
   while (factors.back() > options_.middle_factor) {
     const int half = factors.back() / 2;
-    factors.push_back(half >= options_.middle_factor && half % options_.middle_factor == 0 ? half
-                                                                                           : options_.middle_factor);
+    const bool halves = factors.back() % 2 == 0 && half >= options_.middle_factor && half % options_.middle_factor == 0;
+    factors.push_back(halves ? half : options_.middle_factor);
   }
+  // The template's blocks start where the detector's, at zero shift, do
+  // (same pixel phase, so the detector's margin in the template): a block
+  // of the image then lies on one cell of the template, not half-way
+  // between two (as far as the margins' parity allows).
+  const int side_px = template_->sidePx();
+  const int margin_u = (side_px - config.detector.width_px) / 2, margin_v = (side_px - config.detector.height_px) / 2;
   for (int factor : factors) {
     Level l;
     l.factor = factor;
-    l.side = template_->sidePx() / factor;
+    const int origin_u = margin_u % factor, origin_v = margin_v % factor;
+    l.cols = (side_px - origin_u) / factor;
+    l.rows = (side_px - origin_v) / factor;
     l.step_um = factor * template_->pitchUm();
-    l.centre = 0.5 * (template_->sidePx() / static_cast<double>(factor) - 1.0);
-    l.values = cv::Mat::zeros(l.side, l.side, CV_64F);
+    l.centre_u = (0.5 * (side_px - 1) - origin_u - 0.5 * (factor - 1)) / factor;
+    l.centre_v = (0.5 * (side_px - 1) - origin_v - 0.5 * (factor - 1)) / factor;
+    l.values = cv::Mat::zeros(l.rows, l.cols, CV_64F);
     const cv::Mat& p = template_->values();
-    for (int v = 0; v < l.side; ++v)
-      for (int u = 0; u < l.side; ++u) {
+    for (int v = 0; v < l.rows; ++v)
+      for (int u = 0; u < l.cols; ++u) {
         double s = 0.0;
         for (int j = 0; j < factor; ++j)
-          for (int i = 0; i < factor; ++i) s += std::max(0.0, p.at<double>(v * factor + j, u * factor + i) - above);
+          for (int i = 0; i < factor; ++i)
+            s += std::max(0.0, p.at<double>(origin_v + v * factor + j, origin_u + u * factor + i) - above);
         l.values.at<double>(v, u) = s / (factor * factor);
       }
     cv::integral(l.values, l.integral, CV_64F);
@@ -131,34 +138,33 @@ PatternSolver::Pixels PatternSolver::pixelsOf(const cv::Mat& image) const {
   const int band = 2 * options_.dark_band_px + 1;
   cv::dilate(lit, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(band, band)));
   Pixels px;
-  const double pitch = config_.detector.pitch_um;
-  const double cx = 0.5 * (image.cols - 1), cy = 0.5 * (image.rows - 1);
-  for (std::size_t l = 0; l < levels_.size(); ++l) {
+  // Finest level first: each coarser one sums the finer one's blocks.
+  px.block_sums.resize(levels_.size());
+  for (std::size_t l = levels_.size(); l-- > 0;) {
     const int f = levels_[l].factor;
-    const int bw = (image.cols + f - 1) / f, bh = (image.rows + f - 1) / f;
-    std::vector<double> sums(static_cast<std::size_t>(bw * bh), 0.0);
-    for (int r = 0; r < image.rows; ++r)
-      for (int c = 0; c < image.cols; ++c)
-        sums[static_cast<std::size_t>((r / f) * bw + c / f)] += value.at<double>(r, c);
-    std::vector<Pixels::Block> blocks;
-    for (int br = 0; br < bh; ++br)
-      for (int bc = 0; bc < bw; ++bc) {
-        const double s = sums[static_cast<std::size_t>(br * bw + bc)];
-        if (s > 0.0) blocks.push_back({((bc + 0.5) * f - 0.5 - cx) * pitch, ((br + 0.5) * f - 0.5 - cy) * pitch, s});
-      }
-    px.blocks.push_back(std::move(blocks));
+    const bool from_finer = l + 1 < levels_.size();
+    const cv::Mat& in = from_finer ? px.block_sums[l + 1] : value;
+    const int ratio = from_finer ? f / levels_[l + 1].factor : f;
+    cv::Mat sums = cv::Mat::zeros((image.rows + f - 1) / f, (image.cols + f - 1) / f, CV_64F);
+    for (int r = 0; r < in.rows; ++r) {
+      const double* from = in.ptr<double>(r);
+      double* to = sums.ptr<double>(r / ratio);
+      for (int c = 0; c < in.cols; ++c) to[c / ratio] += from[c];
+    }
+    px.block_sums[l] = sums;
   }
-  for (int r = 0; r < image.rows; ++r)
+  for (int r = 0; r < image.rows; ++r) {
+    const double* v = value.ptr<double>(r);
+    const std::uint8_t* n = near.ptr<std::uint8_t>(r);
     for (int c = 0; c < image.cols; ++c) {
-      const double v = value.at<double>(r, c);
-      const Pixels::Pixel p{c, r, v};
-      if (v > 0.0) {
-        px.lit.push_back(p);
-        px.total += v;
-      } else if (near.at<std::uint8_t>(r, c)) {
-        px.dark.push_back(p);
+      if (v[c] > 0.0) {
+        px.lit.push_back({c, r, v[c]});
+        px.total += v[c];
+      } else if (n[c]) {
+        px.dark.push_back({c, r, v[c]});
       }
     }
+  }
   return px;
 }
 
@@ -182,28 +188,36 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   // template's light in the window would draw at the image's mean level.
   const double half_w = 0.5 * image.cols * config_.detector.pitch_um;
   const double half_h = 0.5 * image.rows * config_.detector.pitch_um;
-  // Shifts are whole cells of the level's grid: each block's cell is
-  // found once, and a shift only offsets the indices.
-  struct Cell {
-    int u, v;
-    double value;
-  };
-  std::vector<std::vector<Cell>> cells(levels_.size());
-  std::vector<std::array<int, 2>> window_cell(levels_.size());
+  // Shifts are whole cells of the level's grid: the image's blocks lie on
+  // the cells from that of block (0, 0) on, and a shift's score is one dot
+  // product per row of blocks with the template.
+  std::vector<std::array<int, 2>> first_cell(levels_.size()), window_cell(levels_.size());
   for (std::size_t level = 0; level < levels_.size(); ++level) {
     const Level& l = levels_[level];
-    for (const auto& b : px.blocks[level])
-      cells[level].push_back({static_cast<int>(std::lround(b.x_um / l.step_um + l.centre)),
-                              static_cast<int>(std::lround(b.y_um / l.step_um + l.centre)), b.sum});
-    window_cell[level] = {static_cast<int>(std::lround(-half_w / l.step_um + l.centre + 0.5)),
-                          static_cast<int>(std::lround(-half_h / l.step_um + l.centre + 0.5))};
+    // Block (0, 0)'s centre [um from the detector centre].
+    const double first_x_um = 0.5 * (l.factor - image.cols) * config_.detector.pitch_um;
+    const double first_y_um = 0.5 * (l.factor - image.rows) * config_.detector.pitch_um;
+    first_cell[level] = {static_cast<int>(std::lround(first_x_um / l.step_um + l.centre_u)),
+                         static_cast<int>(std::lround(first_y_um / l.step_um + l.centre_v))};
+    window_cell[level] = {static_cast<int>(std::lround(-half_w / l.step_um + l.centre_u + 0.5)),
+                          static_cast<int>(std::lround(-half_h / l.step_um + l.centre_v + 0.5))};
   }
   auto score = [&](std::size_t level, int shift_u, int shift_v) {
     const Level& l = levels_[level];
+    const cv::Mat& sums = px.block_sums[level];
+    const int u0 = first_cell[level][0], v0 = first_cell[level][1];
+    // Template cell u - shift_u must lie in [0, cols).
+    const int u_from = std::max(u0, shift_u), u_to = std::min(u0 + sums.cols, shift_u + l.cols);
     double s = 0.0;
-    for (const auto& c : cells[level]) s += c.value * l.at(c.u - shift_u, c.v - shift_v);
-    const int u0 = window_cell[level][0] - shift_u, v0 = window_cell[level][1] - shift_v;
-    return s - mean * l.factor * l.factor * l.sum(u0, v0, u0 + image.cols / l.factor, v0 + image.rows / l.factor);
+    if (u_to > u_from)
+      for (int r = 0; r < sums.rows; ++r) {
+        const int tv = v0 + r - shift_v;
+        if (tv < 0 || tv >= l.rows) continue;
+        s += Eigen::Map<const Eigen::VectorXd>(sums.ptr<double>(r) + (u_from - u0), u_to - u_from)
+                 .dot(Eigen::Map<const Eigen::VectorXd>(l.values.ptr<double>(tv) + (u_from - shift_u), u_to - u_from));
+      }
+    const int w0 = window_cell[level][0] - shift_u, h0 = window_cell[level][1] - shift_v;
+    return s - mean * l.factor * l.factor * l.sum(w0, h0, w0 + image.cols / l.factor, h0 + image.rows / l.factor);
   };
   // Global search over the field's shifts on the coarse grid.
   const Level& coarse = levels_[0];
@@ -240,7 +254,9 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   for (const auto& peak : peaks) {
     int best_u = peak.u, best_v = peak.v;
     for (std::size_t level = 1; level < levels_.size(); ++level) {
-      const int ratio = levels_[level - 1].factor / levels_[level].factor, span = ratio + 1;
+      // The coarse peak can lie more than a cell off (coarse blocks blur
+      // the pattern); a finer level's start lies within a cell.
+      const int ratio = levels_[level - 1].factor / levels_[level].factor, span = level == 1 ? ratio + 1 : ratio;
       const int centre_u = best_u * ratio, centre_v = best_v * ratio;
       double top = -std::numeric_limits<double>::infinity();
       for (int j = -span; j <= span; ++j)

@@ -23,7 +23,7 @@
 namespace dss {
 
 struct PatternSolveOptions {
-  int coarse_factor = 8;         // block size of the global search [px]
+  int coarse_factor = 16;        // block size of the global search [px]
   int middle_factor = 2;         // block size of the local search around each candidate [px]
   int candidates = 6;            // global search peaks refined...
   int candidate_stride = 4;      // ...on every this-many-th pixel...
