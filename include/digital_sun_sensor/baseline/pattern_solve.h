@@ -24,7 +24,8 @@ namespace dss {
 
 struct PatternSolveOptions {
   int coarse_factor = 16;        // block size of the global search [px]
-  int middle_factor = 2;         // block size of the local search around each candidate [px]
+  int middle_factor = 2;         // finest block size of the local search around each candidate,
+                                 // which halves the coarse one down to it [px]
   int candidates = 6;            // global search peaks refined...
   int candidate_stride = 4;      // ...on every this-many-th pixel...
   int candidate_iterations = 4;  // ...by this many Gauss-Newton iterations
