@@ -12,7 +12,7 @@ Keys:
                     BAG = {name, count, seed, [offset], [sampling], [anomalies]}
                     and the bag is DATA/<model>.<name>.bag
   train             {arch, epochs, lr, seed, centroid_weighting, feature_corrections,
-                    [lattice_phase], [head], [value_saturation]}: dss train options
+                    [lattice_phase], [head], [value_saturation], [spot_readout]}: dss train options
   calibrate_sigma   {correction_degree: keep|none|D, symmetry: keep|none|flips|dihedral,
                     [unit_tolerances: K], [spot_bias_degree: D], [nominal_bags: [NAME, ...]]}: K
                     (geometric head) adds
@@ -129,7 +129,7 @@ def main():
     check(path, "bags", recipe["bags"], ("train", "test", "sigma"))
     train = recipe["train"]
     check(path, "train", train, ("arch", "epochs", "lr", "seed", "centroid_weighting", "feature_corrections"),
-          ("lattice_phase", "head", "value_saturation"))
+          ("lattice_phase", "head", "value_saturation", "spot_readout"))
     sigma = recipe["calibrate_sigma"]
     check(path, "calibrate_sigma", sigma, ("correction_degree", "symmetry"), ("unit_tolerances", "spot_bias_degree", "nominal_bags"))
     sigma_names = [str(b.get("name")) for b in recipe["bags"]["sigma"] if isinstance(b, dict)]
@@ -154,6 +154,7 @@ def main():
         "LATTICE_PHASE": str(train.get("lattice_phase", "")),
         "HEAD": str(train.get("head", "")),
         "VALUE_SATURATION": str(train.get("value_saturation", "")),
+        "SPOT_READOUT": str(train.get("spot_readout", "")),
         "CORRECTION": str(sigma["correction_degree"]),
         "SYMMETRY": str(sigma["symmetry"]),
         "UNIT_TOLERANCES": str(sigma.get("unit_tolerances", "keep")),

@@ -53,6 +53,7 @@ for model in "${models[@]}"; do
   [ -n "$LATTICE_PHASE" ] && phase=(--lattice-phase "$LATTICE_PHASE")
   [ -n "$HEAD" ] && phase+=(--head "$HEAD")
   [ -n "$VALUE_SATURATION" ] && phase+=(--value-saturation "$VALUE_SATURATION")
+  [ -n "$SPOT_READOUT" ] && phase+=(--spot-readout "$SPOT_READOUT")
   train_and_evaluate "$model" "${train# }" "$test" "${sigma# }" "$EPOCHS" "$ARCH" "$CORRECTION" "$SYMMETRY" \
     --centroid-weighting "$WEIGHTING" --feature-corrections "$FEATURES" "${phase[@]}" --lr "$LR" --seed "$TRAIN_SEED"
 done

@@ -49,6 +49,10 @@ int runTrain(int argc, char** argv) {
            "angle corrections from the pooled backbone features (on), or the angles a smooth function of the spot "
            "position alone (off); default: the --init model's, else on",
            "", false, false},
+          {"spot-readout", "R",
+           "the geometric head's read-out of a whole spot: centroid (its weighted centroid) or symmetry (its point "
+           "of symmetry, fitted; less noise on spots with steep flanks); default: the --init model's, else centroid",
+           "", false, false},
           {"lattice-phase", "RULE",
            "lattice masks: whole spots read spot by spot (spotwise) or their sites pooled (whole_spots, the shipped "
            "thesis_ma); default: the --init model's, else spotwise",
@@ -102,6 +106,7 @@ int runTrain(int argc, char** argv) {
   options.centroid_weighting = args.get("centroid-weighting");
   if (!args.get("value-saturation").empty()) options.value_saturation = args.getDouble("value-saturation");
   options.feature_corrections = args.get("feature-corrections");
+  options.spot_readout = args.get("spot-readout");
   options.lattice_phase = args.get("lattice-phase");
   options.head = args.get("head");
   if (args.get("epochs") != "auto") options.epochs = static_cast<int>(args.getInt("epochs"));

@@ -263,6 +263,7 @@ GeometricSolution solveGeometry(const SensorGeometryImpl& geometry, const torch:
   plain.rounds = options.association_rounds;
   plain.iterations = options.gauss_newton_iterations;
   plain.search = options.search_reference;
+  plain.symmetric_spots = options.symmetric_spots;
   plain.group_variance = geometry.groupPositionVariance();
   const auto xy = sites.accessor<double, 2>();
   const auto w = plain_weight.accessor<double, 1>();

@@ -7,6 +7,7 @@
 #include <utility>
 #include <vector>
 
+#include "digital_sun_sensor/baseline/symmetry_centre.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
@@ -81,6 +82,48 @@ void fitCutSpot(const std::vector<Site>& sites, const std::vector<std::size_t>& 
   for (std::size_t i : members) r.read_um[i] = sites[i].um + shift;
 }
 
+// A whole spot read at its point of symmetry: its sites' weights placed on
+// the pixel grid (dark around them) and fitted from their centroid; the
+// sites are read moved by the change, as a cut spot's. Sites off the grid
+// (not at pixel centres) or a failed fit leave the centroid.
+void fitSymmetricSpot(const std::vector<Site>& sites, const std::vector<std::size_t>& members, const Options& options,
+                      Reading& r) {
+  constexpr int kMargin = 3;  // dark pixels around the lit ones: the mirror image's taps reach them
+  if (members.size() < 4) return;
+  const double cx = 0.5 * (options.width_px - 1), cy = 0.5 * (options.height_px - 1);
+  std::vector<Eigen::Vector2i> pixel;
+  pixel.reserve(members.size());
+  Eigen::Vector2i lo(std::numeric_limits<int>::max(), std::numeric_limits<int>::max()), hi = -lo;
+  Eigen::Vector2d centroid = Eigen::Vector2d::Zero();
+  double sum = 0.0;
+  for (std::size_t i : members) {
+    const Eigen::Vector2d p(sites[i].um.x() / options.pitch_um + cx, sites[i].um.y() / options.pitch_um + cy);
+    const Eigen::Vector2i q(static_cast<int>(std::lround(p.x())), static_cast<int>(std::lround(p.y())));
+    if ((p - q.cast<double>()).cwiseAbs().maxCoeff() > 0.01) return;
+    pixel.push_back(q);
+    lo = lo.cwiseMin(q);
+    hi = hi.cwiseMax(q);
+    centroid += sites[i].weight * p;
+    sum += sites[i].weight;
+  }
+  if (!(sum > 0.0)) return;
+  centroid /= sum;
+  SymmetryPatch patch;
+  patch.cols = hi.x() - lo.x() + 1 + 2 * kMargin;
+  patch.rows = hi.y() - lo.y() + 1 + 2 * kMargin;
+  patch.values.assign(static_cast<std::size_t>(patch.cols) * static_cast<std::size_t>(patch.rows), 0.0);
+  const Eigen::Vector2i origin = lo - Eigen::Vector2i::Constant(kMargin);
+  for (std::size_t k = 0; k < members.size(); ++k) {
+    const Eigen::Vector2i q = pixel[k] - origin;
+    patch.values[static_cast<std::size_t>(q.y()) * static_cast<std::size_t>(patch.cols) +
+                 static_cast<std::size_t>(q.x())] = sites[members[k]].weight;
+  }
+  const auto centre = symmetryCentre(patch, centroid - origin.cast<double>());
+  if (!centre) return;
+  const Eigen::Vector2d shift = (*centre + origin.cast<double>() - centroid) * options.pitch_um;
+  for (std::size_t i : members) r.read_um[i] = sites[i].um + shift;
+}
+
 }  // namespace
 
 Reading readSpots(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& angles, double radius_um,
@@ -122,6 +165,7 @@ Reading readSpots(const Design& design, const std::vector<Site>& sites, const Ei
   }
   for (std::size_t g = 0; g < groups; ++g) {
     if (fit_cut && r.cut[g]) fitCutSpot(sites, members[g], r.cut[g], r);
+    if (fit_cut && !r.cut[g] && options.symmetric_spots) fitSymmetricSpot(sites, members[g], options, r);
     Eigen::Vector2d second = Eigen::Vector2d::Zero();
     for (std::size_t i : members[g]) {
       const double w = sites[i].weight;
@@ -262,6 +306,10 @@ std::vector<Eigen::Vector2d> groupSpots(const Design& design, const Eigen::Vecto
 ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, const Eigen::Vector2d& reference_rad,
                          const Options& options) {
   Eigen::Vector2d angles = clampAngles(reference_rad);
+  // The association and the search read centroids; symmetric spots (a fit
+  // per spot) are read once the angles are found, in a last round.
+  Options centroids = options;
+  centroids.symmetric_spots = false;
   // The search's hypotheses, refined and scored, and the chosen one's score
   // (none without a search).
   std::vector<std::pair<Eigen::Vector2d, Score>> candidates;
@@ -277,10 +325,10 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
     std::size_t anchor = 0;
     for (std::size_t i = 1; i < sites.size(); ++i)
       if (sites[i].weight > sites[anchor].weight) anchor = i;
-    const Eigen::Vector2d start = refine(design, sites, angles, options);
+    const Eigen::Vector2d start = refine(design, sites, angles, centroids);
     candidates.emplace_back(start, score(design, sites, start, options));
     for (int g = 0; g < design.groups; ++g) {
-      const Eigen::Vector2d candidate = refine(design, sites, placeGroup(design, g, sites[anchor].um), options);
+      const Eigen::Vector2d candidate = refine(design, sites, placeGroup(design, g, sites[anchor].um), centroids);
       candidates.emplace_back(candidate, score(design, sites, candidate, options));
     }
     double best = -std::numeric_limits<double>::infinity();
@@ -296,7 +344,12 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
       }
     }
   } else {
-    angles = refine(design, sites, angles, options);
+    angles = refine(design, sites, angles, centroids);
+  }
+  if (options.symmetric_spots) {
+    Options last = options;
+    last.rounds = 1;
+    angles = refine(design, sites, angles, last);
   }
   ImageSolution out;
   out.angles_rad = angles;

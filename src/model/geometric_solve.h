@@ -35,6 +35,9 @@ struct Options {
   int width_px = 1, height_px = 1;
   int rounds = 2, iterations = 5;
   bool search = false;
+  // Whole spots read at their point of symmetry (baseline/symmetry_centre.h),
+  // not their weighted centroid, where readSpots fits (fit_cut).
+  bool symmetric_spots = false;
   // Per group: the uncertainty of its spot's position from the geometry, in
   // units of the spot noise per unit weight (SensorGeometryImpl::
   // groupPositionVariance); empty: none.
@@ -73,7 +76,9 @@ struct ImageSolution {
 // With `fit_cut`, a cut spot's centre along the axes it is cut is the vertex
 // of an isotropic quadratic fitted to its sites' weights (its plain centroid
 // is pulled inward), and its sites are read moved by the difference
-// (`read_um`: where each site is read).
+// (`read_um`: where each site is read). With the options' symmetric_spots
+// (and `fit_cut`), a whole spot's sites are read moved alike so that their
+// weighted centroid is the spot's point of symmetry.
 struct Reading {
   std::vector<int> group;
   std::vector<double> distance2;

@@ -237,6 +237,7 @@ std::string metadataToYaml(const ModelMetadata& m) {
     e << YAML::Key << "geometric_groups" << YAML::Value << m.arch.geometric_groups;
     e << YAML::Key << "geometric_air_above_exit_um" << YAML::Value << m.arch.geometric_air_above_exit_um;
     e << YAML::Key << "geometric_gate_um" << YAML::Value << m.arch.geometric_gate_um;
+    if (m.arch.geometric_symmetric_spots) e << YAML::Key << "geometric_symmetric_spots" << YAML::Value << true;
     e << YAML::Key << "detector_pitch_um" << YAML::Value << m.arch.detector_pitch_um;
     e << YAML::Key << "detector_width_px" << YAML::Value << m.arch.detector_width_px;
     e << YAML::Key << "detector_height_px" << YAML::Value << m.arch.detector_height_px;
@@ -407,6 +408,8 @@ ModelMetadata metadataFromYaml(const std::string& text, const std::string& origi
     if (a["geometric_air_above_exit_um"])
       m.arch.geometric_air_above_exit_um = get<double>(a, "geometric_air_above_exit_um", origin, "arch.");
     m.arch.geometric_gate_um = get<double>(a, "geometric_gate_um", origin, "arch.");
+    if (a["geometric_symmetric_spots"])  // absent: weighted centroids
+      m.arch.geometric_symmetric_spots = get<bool>(a, "geometric_symmetric_spots", origin, "arch.");
     m.arch.detector_pitch_um = get<double>(a, "detector_pitch_um", origin, "arch.");
     m.arch.detector_width_px = get<int>(a, "detector_width_px", origin, "arch.");
     m.arch.detector_height_px = get<int>(a, "detector_height_px", origin, "arch.");

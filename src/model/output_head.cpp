@@ -87,6 +87,7 @@ void SscnnNetImpl::solveAngles(SscnnOutput& out, const torch::Tensor& w, const t
   options.pitch_um = arch_.detector_pitch_um;
   options.width_px = arch_.detector_width_px;
   options.height_px = arch_.detector_height_px;
+  options.symmetric_spots = arch_.geometric_symmetric_spots;
   // An aperture-code coarse estimate has the association right already: on
   // wide_ma the search changed no estimate and took 43 of 49 ms per image.
   options.search_reference = !known_angles.defined() && !arch_.latticeHead();

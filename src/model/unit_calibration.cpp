@@ -293,6 +293,7 @@ geometric::Options geometric::solveOptions(const Model& model) {
   o.pitch_um = model.meta.arch.detector_pitch_um;
   o.width_px = model.meta.arch.detector_width_px;
   o.height_px = model.meta.arch.detector_height_px;
+  o.symmetric_spots = model.meta.arch.geometric_symmetric_spots;
   return o;
 }
 

@@ -32,6 +32,7 @@ TrainOptions optionsFromParams(const ros::NodeHandle& pnh) {
   o.centroid_weighting = pnh.param<std::string>("centroid_weighting", "");
   o.value_saturation = pnh.param("value_saturation", o.value_saturation);
   o.feature_corrections = pnh.param<std::string>("feature_corrections", "");
+  o.spot_readout = pnh.param<std::string>("spot_readout", "");
   o.lattice_phase = pnh.param<std::string>("lattice_phase", "");
   o.head = pnh.param<std::string>("head", "");
   o.batch_size = pnh.param("batch_size", o.batch_size);

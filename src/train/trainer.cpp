@@ -103,6 +103,8 @@ void TrainOptions::validate() const {
   require(std::isfinite(value_saturation), "value_saturation must be finite");
   require(feature_corrections.empty() || feature_corrections == "on" || feature_corrections == "off",
           "feature_corrections must be 'on' or 'off', not '" + feature_corrections + "'");
+  require(spot_readout.empty() || spot_readout == "centroid" || spot_readout == "symmetry",
+          "spot_readout must be 'centroid' or 'symmetry', not '" + spot_readout + "'");
   require(lattice_phase.empty() || lattice_phase == "spotwise" || lattice_phase == "whole_spots",
           "lattice_phase must be 'spotwise' or 'whole_spots', not '" + lattice_phase + "'");
   if (!head.empty()) {
@@ -144,6 +146,12 @@ FreshModelDesign freshModelDesign(const SensorConfig& sensor, TrainOptions& opti
   d.choose_value_saturation = geometric_head && options.value_saturation < 0.0;
   if (options.value_saturation < 0.0) options.value_saturation = 0.0;
   d.arch.value_saturation = options.value_saturation;
+  if (options.spot_readout.empty()) options.spot_readout = "centroid";
+  if (options.spot_readout == "symmetry" && !geometric_head)
+    throw std::invalid_argument("spot_readout symmetry: only the geometric head reads spots one by one (sensor '" +
+                                sensor.name + "' gets the " + headName(metadataFor(sensor, d.arch, d.head).arch) +
+                                " head)");
+  d.arch.geometric_symmetric_spots = options.spot_readout == "symmetry";
   return d;
 }
 
@@ -178,6 +186,11 @@ Trainer::Impl::Impl(const SensorConfig& s, TrainingSet t, TrainingSet v, TrainOp
     if (options.feature_corrections != corrections)
       throw std::invalid_argument("training option init_model: " + options.init_model + " has feature corrections " +
                                   corrections + ", not " + options.feature_corrections);
+    const std::string readout = model.meta.arch.geometric_symmetric_spots ? "symmetry" : "centroid";
+    if (options.spot_readout.empty()) options.spot_readout = readout;
+    if (options.spot_readout != readout)
+      throw std::invalid_argument("training option init_model: " + options.init_model + " reads spots by " + readout +
+                                  ", not " + options.spot_readout);
     const std::string phase = model.meta.arch.lattice_spotwise_phase ? "spotwise" : "whole_spots";
     if (options.lattice_phase.empty()) options.lattice_phase = phase;
     if (model.meta.arch.latticeHead() && options.lattice_phase != phase)

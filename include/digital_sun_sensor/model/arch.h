@@ -112,7 +112,11 @@ struct ArchSpec {
   int geometric_apertures = 0, geometric_groups = 0;  // groups: apertures whose spots overlap read as one
   double geometric_air_above_exit_um = 0.0;           // MaskGeometry::air_above_exit_um (absent in older files: 0)
   double geometric_gate_um = 0.0;                     // sites farther from every spot are not read
-  double detector_pitch_um = 0.0;                     // the detector's pixels, to place the sites
+  // Whole spots are read at their point of symmetry (baseline/symmetry_centre.h:
+  // the sites' weights as the image) instead of their weighted centroid; the
+  // noise of the read-out goes as 1 / sum |grad w|^2, not as the spot's spread.
+  bool geometric_symmetric_spots = false;
+  double detector_pitch_um = 0.0;  // the detector's pixels, to place the sites
   int detector_width_px = 0, detector_height_px = 0;
   double angle_scale_rad = 0.0;  // of the normalized angles (the metadata's)
   // The sub-FOV class reported is the solved angles' (their quadrant, or the

@@ -104,6 +104,7 @@ struct GeometricSolveOptions {
   // spots explain the most light and leave the fewest expected spots dark:
   // the association then does not hang on a coarse estimate (inference).
   bool search_reference = false;
+  bool symmetric_spots = false;  // ArchSpec::geometric_symmetric_spots
 };
 
 struct GeometricSolution {

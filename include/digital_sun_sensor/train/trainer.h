@@ -47,6 +47,10 @@ struct TrainOptions {
   // Angle corrections from the pooled features: "on" or "off" (ArchSpec::
   // feature_corrections; empty: the init model's, else "on").
   std::string feature_corrections;
+  // The geometric head's read-out of a whole spot: "centroid" (its weighted
+  // centroid) or "symmetry" (its point of symmetry; ArchSpec::
+  // geometric_symmetric_spots); empty: the init model's, else "centroid".
+  std::string spot_readout;
   // Lattice masks: "spotwise" (whole spots read spot by spot) or "whole_spots"
   // (their sites pooled, as the shipped thesis_ma); empty: the init model's,
   // else "spotwise". HeadOptions::lattice_spotwise_phase.
