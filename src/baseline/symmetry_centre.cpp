@@ -1,6 +1,7 @@
 #include "digital_sun_sensor/baseline/symmetry_centre.h"
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <cmath>
 
 #include "digital_sun_sensor/common/cubic_weights.h"
@@ -24,18 +25,32 @@ std::optional<Eigen::Vector2d> symmetryCentre(const SymmetryPatch& patch, const 
     double wx[4], dx[4], wy[4], dy[4];
     cubicWeights(x2 - fx, wx, dx);
     cubicWeights(y2 - fy, wy, dy);
-    // h*(row s, col i) = sum_a w_a I(s, fx - i + a - 1).
-    for (int s = 0; s < patch.rows; ++s)
+    // h*(row s, col i) = sum_a w_a I(s, fx - i + a - 1); the four taps lie
+    // inside the patch for i in [inner_lo, inner_hi].
+    const int inner_lo = std::max(0, fx - patch.cols + 3), inner_hi = std::min(patch.cols - 1, fx - 1);
+    for (int s = 0; s < patch.rows; ++s) {
+      const double* row = &patch.values[static_cast<std::size_t>(s) * cols];
+      double* out0 = &h0[static_cast<std::size_t>(s) * cols];
+      double* out1 = &h1[static_cast<std::size_t>(s) * cols];
       for (int i = 0; i < patch.cols; ++i) {
         double v0 = 0.0, v1 = 0.0;
-        for (int a = 0; a < 4; ++a) {
-          const double value = patch.at(fx - i + a - 1, s);
-          v0 += wx[a] * value;
-          v1 += dx[a] * value;
+        if (i >= inner_lo && i <= inner_hi) {
+          const double* tap = row + (fx - i - 1);
+          for (int a = 0; a < 4; ++a) {
+            v0 += wx[a] * tap[a];
+            v1 += dx[a] * tap[a];
+          }
+        } else {
+          for (int a = 0; a < 4; ++a) {
+            const double value = patch.at(fx - i + a - 1, s);
+            v0 += wx[a] * value;
+            v1 += dx[a] * value;
+          }
         }
-        h0[static_cast<std::size_t>(s) * cols + static_cast<std::size_t>(i)] = v0;
-        h1[static_cast<std::size_t>(s) * cols + static_cast<std::size_t>(i)] = v1;
+        out0[i] = v0;
+        out1[i] = v1;
       }
+    }
     Eigen::Matrix2d normal = Eigen::Matrix2d::Zero();
     Eigen::Vector2d gradient = Eigen::Vector2d::Zero();
     for (int j = 0; j < patch.rows; ++j)

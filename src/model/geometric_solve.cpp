@@ -141,16 +141,32 @@ Reading readSpots(const Design& design, const std::vector<Site>& sites, const Ei
   r.centroid.assign(groups, Eigen::Vector2d::Zero());
   r.cut.assign(groups, 0);
   std::vector<std::vector<std::size_t>> members(groups);
-  for (std::size_t i = 0; i < sites.size(); ++i) {
-    double best = std::numeric_limits<double>::infinity();
+  // The spots within the radius of the detector (wide_ma: 9-16 of 49) are
+  // searched first: a site whose nearest of them lies within the radius has
+  // it as its nearest of all; any other site gets the whole search.
+  const double reach_x = 0.5 * options.width_px * options.pitch_um + radius_um;
+  const double reach_y = 0.5 * options.height_px * options.pitch_um + radius_um;
+  std::vector<std::size_t> near_detector, all(spots.size());
+  for (std::size_t k = 0; k < spots.size(); ++k) {
+    all[k] = k;
+    if (std::abs(spots[k].x()) <= reach_x && std::abs(spots[k].y()) <= reach_y) near_detector.push_back(k);
+  }
+  auto nearestOf = [&](const Eigen::Vector2d& um, const std::vector<std::size_t>& candidates, double& best) {
+    best = std::numeric_limits<double>::infinity();
     int nearest = 0;
-    for (std::size_t k = 0; k < spots.size(); ++k) {
-      const double d2 = (sites[i].um - spots[k]).squaredNorm();
+    for (std::size_t k : candidates) {
+      const double d2 = (um - spots[k]).squaredNorm();
       if (d2 < best) {
         best = d2;
         nearest = static_cast<int>(k);
       }
     }
+    return nearest;
+  };
+  for (std::size_t i = 0; i < sites.size(); ++i) {
+    double best = 0.0;
+    int nearest = nearestOf(sites[i].um, near_detector, best);
+    if (!(best < radius_um * radius_um)) nearest = nearestOf(sites[i].um, all, best);
     r.distance2[i] = best;
     r.group[i] = design.group[static_cast<std::size_t>(nearest)];
     r.read_um[i] = sites[i].um;
@@ -208,24 +224,28 @@ Eigen::Vector2d clampAngles(const Eigen::Vector2d& a) {
   return {std::clamp(a.x(), -kMaxAngle, kMaxAngle), std::clamp(a.y(), -kMaxAngle, kMaxAngle)};
 }
 
+// Gauss-Newton from `angles` on the spots of one reading.
+Eigen::Vector2d solveReading(const Design& design, const Reading& r, Eigen::Vector2d angles, const Options& options) {
+  const auto w = solveWeights(r, options);
+  for (int it = 0; it < options.iterations; ++it) {
+    const auto j = jacobians(design, angles);
+    const auto predicted = groupSpots(design, angles);
+    Eigen::Vector2d b = Eigen::Vector2d::Zero();
+    for (std::size_t g = 0; g < j.size(); ++g)
+      if (w[g] > 0.0) b += w[g] * j[g].transpose() * (r.centroid[g] - predicted[g]);
+    const Eigen::Vector2d step = normalInverse(j, w) * b;
+    if (!step.allFinite()) break;
+    angles = clampAngles(angles + step);
+    if (step.norm() < 1e-13) break;
+  }
+  return angles;
+}
+
 // Rounds of association and Gauss-Newton from `angles`.
 Eigen::Vector2d refine(const Design& design, const std::vector<Site>& sites, Eigen::Vector2d angles,
                        const Options& options) {
-  for (int round = 0; round < options.rounds; ++round) {
-    const Reading r = readSpots(design, sites, angles, options.gate_um, options);
-    const auto w = solveWeights(r, options);
-    for (int it = 0; it < options.iterations; ++it) {
-      const auto j = jacobians(design, angles);
-      const auto predicted = groupSpots(design, angles);
-      Eigen::Vector2d b = Eigen::Vector2d::Zero();
-      for (std::size_t g = 0; g < j.size(); ++g)
-        if (w[g] > 0.0) b += w[g] * j[g].transpose() * (r.centroid[g] - predicted[g]);
-      const Eigen::Vector2d step = normalInverse(j, w) * b;
-      if (!step.allFinite()) break;
-      angles = clampAngles(angles + step);
-      if (step.norm() < 1e-13) break;
-    }
-  }
+  for (int round = 0; round < options.rounds; ++round)
+    angles = solveReading(design, readSpots(design, sites, angles, options.gate_um, options), angles, options);
   return angles;
 }
 
@@ -307,7 +327,7 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
                          const Options& options) {
   Eigen::Vector2d angles = clampAngles(reference_rad);
   // The association and the search read centroids; symmetric spots (a fit
-  // per spot) are read once the angles are found, in a last round.
+  // per spot) are read once, where they found the angles.
   Options centroids = options;
   centroids.symmetric_spots = false;
   // The search's hypotheses, refined and scored, and the chosen one's score
@@ -346,14 +366,10 @@ ImageSolution solveImage(const Design& design, const std::vector<Site>& sites, c
   } else {
     angles = refine(design, sites, angles, centroids);
   }
-  if (options.symmetric_spots) {
-    Options last = options;
-    last.rounds = 1;
-    angles = refine(design, sites, angles, last);
-  }
+  const Reading r = readSpots(design, sites, angles, options.gate_um, options);
+  if (options.symmetric_spots) angles = solveReading(design, r, angles, options);
   ImageSolution out;
   out.angles_rad = angles;
-  const Reading r = readSpots(design, sites, angles, options.gate_um, options);
   // One lit spot on a mask whose apertures differ: ambiguous when another
   // hypothesis explains the light as well (a dimmer aperture's spot may be
   // under the threshold, so dark spots do not decide).
