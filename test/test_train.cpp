@@ -384,6 +384,17 @@ TEST(Train, BadCheckpointsAndOptionsAreRejected) {
   TrainOptions other_phase = options;
   other_phase.lattice_phase = "whole_spots";
   EXPECT_NE(resumeError(other_phase, train).find("lattice_phase"), std::string::npos);
+  // thesis_sa (one aperture) gets the classic head, which has no spots to read one by one.
+  TrainOptions symmetric = options;
+  symmetric.spot_readout = "symmetry";
+  try {
+    Trainer(tinySensor(), train, validation, symmetric);
+    ADD_FAILURE() << "a symmetric spot read-out without the geometric head was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("only the geometric head"), std::string::npos) << e.what();
+  }
+  symmetric.spot_readout = "median";
+  EXPECT_THROW(symmetric.validate(), std::invalid_argument);
   TrainingSet fewer{train.spec()};
   for (std::size_t i = 1; i < train.size(); ++i) fewer.add(train.samples()[i]);
   EXPECT_NE(resumeError(options, fewer).find("different training data"), std::string::npos);

@@ -77,6 +77,7 @@ std::string Trainer::Impl::stateYaml(double elapsed_s) const {
   e << YAML::Key << "centroid_weighting" << YAML::Value << options.centroid_weighting;
   e << YAML::Key << "value_saturation" << YAML::Value << std::to_string(options.value_saturation);
   e << YAML::Key << "feature_corrections" << YAML::Value << options.feature_corrections;
+  e << YAML::Key << "spot_readout" << YAML::Value << options.spot_readout;
   e << YAML::Key << "lattice_phase" << YAML::Value << options.lattice_phase;
   e << YAML::Key << "head" << YAML::Value << options.head;
   e << YAML::Key << "batch_size" << YAML::Value << options.batch_size;
@@ -133,6 +134,8 @@ void Trainer::Impl::resume(const std::string& path) {
       expect("value_saturation", std::to_string(options.value_saturation));
     if (state["feature_corrections"])  // absent in checkpoints made before it existed
       expect("feature_corrections", options.feature_corrections);
+    if (state["spot_readout"])  // absent in checkpoints made before it existed
+      expect("spot_readout", options.spot_readout);
     if (state["lattice_phase"])  // absent in checkpoints made before it existed
       expect("lattice_phase", options.lattice_phase);
     if (state["head"])  // absent in checkpoints made before it existed

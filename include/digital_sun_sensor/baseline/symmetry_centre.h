@@ -5,9 +5,10 @@
 // disk, the sun's disk, their projection through the cover glass) is fitted
 // from the slopes of its flanks, which carry the position: the noise of this
 // read-out goes as 1 / sum |grad I|^2, that of an intensity-weighted centroid
-// as the spot's spread over its light, and on wide_ma's spots it is 20-35 %
-// smaller. A flat threshold (an on-chip rescale, v = max(0, d - level))
-// leaves the spot symmetric.
+// as the spot's spread over its light: on wide_ma's spots it is 6-34 %
+// smaller, on drawn mask A's broad spots cut at half their peak 20 % larger
+// (docs/sscnn.md#symmetric-spot-read-out). A flat threshold (an on-chip
+// rescale, v = max(0, d - level)) leaves the spot symmetric.
 #pragma once
 
 #include <Eigen/Core>
