@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 #include <numeric>
+#include <opencv2/imgproc.hpp>
+#include <stdexcept>
 #include <vector>
 
 #include "digital_sun_sensor/common/units.h"
@@ -152,6 +154,39 @@ TEST(Renderer, AnomaliesShowUp) {
   Renderer(SensorInstance::nominalOf(debris)).expectedElectrons(Eigen::Vector3d::UnitZ(), &clean_t);
   Renderer(dirty).expectedElectrons(Eigen::Vector3d::UnitZ(), &dirty_t);
   EXPECT_LT(dirty_t.spots[0].relative_flux, 0.99f * clean_t.spots[0].relative_flux);
+}
+
+TEST(Renderer, LightsOnlyTheMarkedPixels) {
+  // What the pattern estimator's design images rely on: marked pixels read
+  // as in the whole render when the image's lit pixels are all marked;
+  // unmarked ones read as unlit.
+  const SensorConfig c = shipped("thesis_ma");
+  const Renderer r(SensorInstance::nominalOf(c));
+  RenderOptions options;
+  options.noise = false;
+  options.anomalies = false;
+  const Eigen::Vector3d sun = sunVectorFromAngles(1.3 * kRadPerDeg, -0.7 * kRadPerDeg);
+  const cv::Mat whole = r.render(sun, 1, nullptr, options);
+  ASSERT_GT(cv::countNonZero(whole), 100);
+  cv::Mat marked;
+  cv::dilate(whole > 0, marked, cv::Mat::ones(3, 3, CV_8U));
+  options.only = &marked;
+  EXPECT_TRUE(identical(r.render(sun, 1, nullptr, options), whole));
+  // Unmark the lit pixels of the detector's left half but its brightest.
+  cv::Point brightest;
+  cv::minMaxLoc(whole, nullptr, nullptr, nullptr, &brightest);
+  const int half = brightest.x < whole.cols / 2 ? whole.cols / 2 : 0;  // the half without it
+  cv::Mat partly = marked.clone();
+  partly(cv::Rect(half, 0, whole.cols / 2, whole.rows)).setTo(0);
+  options.only = &partly;
+  const cv::Mat some = r.render(sun, 1, nullptr, options);
+  cv::Mat expected = whole.clone();
+  expected(cv::Rect(half, 0, whole.cols / 2, whole.rows)).setTo(0);
+  ASSERT_GT(cv::countNonZero(whole) - cv::countNonZero(expected), 0) << "the unmarked half holds light";
+  EXPECT_TRUE(identical(some, expected));
+  const cv::Mat wrong_size = cv::Mat::ones(8, 8, CV_8U);
+  options.only = &wrong_size;
+  EXPECT_THROW(r.render(sun, 1, nullptr, options), std::invalid_argument);
 }
 
 TEST(Renderer, WideFieldSpotsLeaveTheDetectorAndClassIsNearestAperture) {

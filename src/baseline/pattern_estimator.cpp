@@ -3,6 +3,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <opencv2/imgproc.hpp>
 #include <stdexcept>
 #include <string>
 
@@ -25,6 +26,24 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
   const Eigen::Vector2d half(degToRad(config.fov.alpha_max_deg + kFieldMarginDeg),
                              degToRad(config.fov.beta_max_deg + kFieldMarginDeg));
   field_ = {-half, half};
+  // The design's pixels read as lit from this share of its brightest on
+  // (auto exposure under an on-chip threshold; else each decision renders
+  // the whole detector).
+  const double peak_code =
+      std::min<double>(config.maxCode(), config.exposure.peak_fraction_of_full_well * config.noise.full_well_e *
+                                                 config.maxCode() / config.noise.adc_full_scale_e +
+                                             config.noise.black_level_dn);
+  const double lit_share = (config.threshold.level_fraction * config.maxCode() - config.noise.black_level_dn) /
+                           (peak_code - config.noise.black_level_dn);
+  if (config.exposure.mode == ExposureMode::kAuto && config.threshold.enabled && lit_share > 0.0 && lit_share < 1.0)
+    reach_share_ = kReachMargin * lit_share;
+  // Image values are codes: their variances and linear range once per code.
+  for (int code = 0; code <= config.maxCode(); ++code) {
+    variance_of_code_.push_back(noise_.varianceOfValue(code));
+    linear_code_.push_back(noise_.inLinearRange(code, kLinearRangeSigmas));
+  }
+  for (int sum = 0; sum <= 2 * config.maxCode(); ++sum)
+    variance_of_half_sum_.push_back(noise_.varianceOfValue(0.5 * sum));
   if (options.sigma_images <= 0) return;
   // The design with its detector's fixed patterns and noise, no unit errors, no anomalies.
   SensorConfig design = config;
@@ -51,10 +70,25 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
   if (count >= options.sigma_images / 2) sigma_scale_ = {std::sqrt(z2[0] / count), std::sqrt(z2[1] / count)};
 }
 
-cv::Mat PatternEstimator::designImage(const Eigen::Vector2d& angles_rad) const {
+std::optional<cv::Mat> PatternEstimator::designPixels(const cv::Mat& image,
+                                                      const std::vector<Eigen::Vector2d>& places_rad) const {
+  if (!(reach_share_ > 0.0)) return std::nullopt;
+  cv::Mat mask = image > 0;
+  for (const auto& place : places_rad) {
+    const Eigen::Vector2d shift = solver_.shiftUm(place);
+    cv::bitwise_or(mask, solver_.patternTemplate().reaching(image.cols, image.rows, shift.x(), shift.y(), reach_share_),
+                   mask);
+  }
+  const int side = 2 * kDesignBandPx + 1;
+  cv::dilate(mask, mask, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
+  return mask;
+}
+
+cv::Mat PatternEstimator::designImage(const Eigen::Vector2d& angles_rad, const std::optional<cv::Mat>& only) const {
   RenderOptions options;
   options.noise = false;
   options.anomalies = false;
+  options.only = only ? &*only : nullptr;
   cv::Mat out;
   design_.render(sunVectorFromAngles(angles_rad.x(), angles_rad.y()), 1, nullptr, options).convertTo(out, CV_64F);
   return out;
@@ -66,11 +100,13 @@ double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Ma
   for (int r = 0; r < observed.rows; ++r) {
     const double* i = observed.ptr<double>(r);
     const double* e = expected.ptr<double>(r);
-    for (int c = 0; c < observed.cols; ++c)
-      if (noise_.inLinearRange(e[c], kLinearRangeSigmas)) {
-        chi2 += (i[c] - e[c]) * (i[c] - e[c]) / noise_.varianceOfValue(e[c]);
+    for (int c = 0; c < observed.cols; ++c) {
+      const auto code = static_cast<std::size_t>(e[c]);  // the design's values are codes
+      if (linear_code_[code]) {
+        chi2 += (i[c] - e[c]) * (i[c] - e[c]) / variance_of_code_[code];
         ++n;
       }
+    }
   }
   return n > 0 ? (chi2 - n) / std::sqrt(2.0 * n) : 0.0;
 }
@@ -78,12 +114,13 @@ double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Ma
 double PatternEstimator::unexplainedLightZ(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const {
   cv::Mat observed;
   image.convertTo(observed, CV_64F);
-  return unexplainedLightZ(observed, designImage(angles_rad));
+  return unexplainedLightZ(observed, designImage(angles_rad, designPixels(image, {angles_rad})));
 }
 
 AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen::Vector2d& here_rad,
                                               const Eigen::Vector2d& there_rad) const {
-  const cv::Mat here = designImage(here_rad), there = designImage(there_rad);
+  const std::optional<cv::Mat> pixels = designPixels(image, {here_rad, there_rad});
+  const cv::Mat here = designImage(here_rad, pixels), there = designImage(there_rad, pixels);
   cv::Mat observed;
   image.convertTo(observed, CV_64F);
   // The log-likelihood ratio of the two places under Gaussian pixel noise
@@ -98,7 +135,7 @@ AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen:
       const double delta = h[c] - t[c];
       if (delta == 0.0) continue;
       const double rh = i[c] - h[c], rt = i[c] - t[c];
-      const double v = noise_.varianceOfValue(0.5 * (h[c] + t[c]));
+      const double v = variance_of_half_sum_[static_cast<std::size_t>(h[c] + t[c])];
       log_ratio += (rt * rt - rh * rh) / v;
       log_ratio_variance += 4.0 * delta * delta / v;
     }

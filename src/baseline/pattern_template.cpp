@@ -50,28 +50,26 @@ PatternTemplate::Shifted PatternTemplate::shifted(int detector_width_px, int det
   s.base_v_ = static_cast<int>(fv);
   cubicWeights(u - fu, s.wu_, s.du_);
   cubicWeights(v - fv, s.wv_, s.dv_);
+  for (int k = 0; k < 4; ++k) {  // per um, not per pixel
+    s.du_[k] /= pitch_um_;
+    s.dv_[k] /= pitch_um_;
+  }
   return s;
 }
 
-double PatternTemplate::Shifted::at(int col, int row, double& grad_x, double& grad_y) const {
-  const int iu = col + base_u_, iv = row + base_v_;
-  const int side = pattern_->side_px_;
-  if (iu < 1 || iv < 1 || iu + 2 >= side || iv + 2 >= side) {
-    grad_x = grad_y = 0.0;
-    return 0.0;
-  }
-  double value = 0.0, gx = 0.0, gy = 0.0;
-  for (int j = 0; j < 4; ++j) {
-    const double* r = pattern_->values_.ptr<double>(iv - 1 + j) + (iu - 1);
-    const double along = wu_[0] * r[0] + wu_[1] * r[1] + wu_[2] * r[2] + wu_[3] * r[3];
-    const double slope = du_[0] * r[0] + du_[1] * r[1] + du_[2] * r[2] + du_[3] * r[3];
-    value += wv_[j] * along;
-    gx += wv_[j] * slope;
-    gy += dv_[j] * along;
-  }
-  grad_x = gx / pattern_->pitch_um_;
-  grad_y = gy / pattern_->pitch_um_;
-  return value;
+cv::Mat PatternTemplate::reaching(int detector_width_px, int detector_height_px, double shift_x_um, double shift_y_um,
+                                  double fraction) const {
+  // Pixel (c, r) lies nearest template pixel (c + u0, r + v0).
+  const int u0 = static_cast<int>(std::lround(centre_px_ - 0.5 * (detector_width_px - 1) - shift_x_um / pitch_um_));
+  const int v0 = static_cast<int>(std::lround(centre_px_ - 0.5 * (detector_height_px - 1) - shift_y_um / pitch_um_));
+  cv::Mat seen = cv::Mat::zeros(detector_height_px, detector_width_px, CV_64F);
+  const cv::Rect inside = cv::Rect(u0, v0, detector_width_px, detector_height_px) & cv::Rect(0, 0, side_px_, side_px_);
+  if (inside.area() > 0) values_(inside).copyTo(seen(inside - cv::Point(u0, v0)));
+  double peak = 0.0;
+  cv::minMaxLoc(seen, nullptr, &peak);
+  cv::Mat out = seen >= fraction * peak;
+  if (!(peak > 0.0)) out.setTo(0);
+  return out;
 }
 
 }  // namespace dss

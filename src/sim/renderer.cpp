@@ -6,6 +6,8 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -21,8 +23,30 @@ namespace {
 constexpr double kPlanck = 6.62607015e-34;
 constexpr double kLightSpeed = 2.99792458e8;
 
-// Adds `scale` x (blended spot) centred at detector position (cx, cy) [um].
-void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double cy_um, double scale, double pitch_um) {
+// Column runs [begin, end) per row: the pixels a render lights.
+using RowRuns = std::vector<std::vector<std::pair<int, int>>>;
+
+RowRuns runsOf(const cv::Mat& mask) {
+  RowRuns runs(static_cast<std::size_t>(mask.rows));
+  for (int r = 0; r < mask.rows; ++r) {
+    const std::uint8_t* m = mask.ptr<std::uint8_t>(r);
+    for (int c = 0; c < mask.cols;) {
+      if (!m[c]) {
+        ++c;
+        continue;
+      }
+      const int begin = c;
+      while (c < mask.cols && m[c]) ++c;
+      runs[static_cast<std::size_t>(r)].emplace_back(begin, c);
+    }
+  }
+  return runs;
+}
+
+// Adds `scale` x (blended spot) centred at detector position (cx, cy) [um],
+// on the pixels of `only` where given.
+void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double cy_um, double scale, double pitch_um,
+           const RowRuns* only = nullptr) {
   const int w = image.cols, h = image.rows;
   const double half_w = 0.5 * (w - 1), half_h = 0.5 * (h - 1);
   double u_lo = std::numeric_limits<double>::max(), u_hi = -u_lo, v_lo = u_lo, v_hi = -u_lo;
@@ -62,32 +86,38 @@ void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double c
     }
   }
   thread_local std::vector<float> acc;
+  acc.resize(static_cast<std::size_t>(c1 - c0 + 1));
+  const std::vector<std::pair<int, int>> whole_row{{c0, c1 + 1}};
   for (int r = r0; r <= r1; ++r) {
     const double v = (r - half_h) * pitch_um - cy_um;
-    acc.assign(static_cast<std::size_t>(c1 - c0 + 1), 0.0f);
-    bool any = false;
-    for (int k = 0; k < blend.count; ++k) {
-      const SpotMap& m = *blend.maps[k];
-      const double y = (v - m.v0_um) / m.step_um;
-      if (!(y >= 0.0 && y < m.rows - 1)) continue;
-      any = true;
-      const int mr = static_cast<int>(y);
-      const float fy = static_cast<float>(y - mr);
-      const float* top = &m.values[static_cast<std::size_t>(mr) * m.cols];
-      const float* bottom = top + m.cols;
-      const float weight = blend.weights[k];
-      const int* col = sample_col[k].data();
-      const float* frac = sample_fx[k].data();
-      for (int i = first[k]; i <= last[k]; ++i) {
-        const int mc = col[i];
-        const float fx = frac[i];
-        acc[static_cast<std::size_t>(i)] += weight * ((1.0f - fy) * ((1.0f - fx) * top[mc] + fx * top[mc + 1]) +
-                                                      fy * ((1.0f - fx) * bottom[mc] + fx * bottom[mc + 1]));
-      }
-    }
-    if (!any) continue;
     float* row = image.ptr<float>(r);
-    for (int c = c0; c <= c1; ++c) row[c] += static_cast<float>(scale * acc[static_cast<std::size_t>(c - c0)]);
+    for (const auto& [begin, end] : only ? (*only)[static_cast<std::size_t>(r)] : whole_row) {
+      const int from = std::max(begin, c0) - c0, to = std::min(end, c1 + 1) - c0;  // [from, to) of acc
+      if (to <= from) continue;
+      std::fill(acc.begin() + from, acc.begin() + to, 0.0f);
+      bool any = false;
+      for (int k = 0; k < blend.count; ++k) {
+        const SpotMap& m = *blend.maps[k];
+        const double y = (v - m.v0_um) / m.step_um;
+        if (!(y >= 0.0 && y < m.rows - 1)) continue;
+        any = true;
+        const int mr = static_cast<int>(y);
+        const float fy = static_cast<float>(y - mr);
+        const float* top = &m.values[static_cast<std::size_t>(mr) * m.cols];
+        const float* bottom = top + m.cols;
+        const float weight = blend.weights[k];
+        const int* col = sample_col[k].data();
+        const float* frac = sample_fx[k].data();
+        for (int i = std::max(first[k], from), i_end = std::min(last[k] + 1, to); i < i_end; ++i) {
+          const int mc = col[i];
+          const float fx = frac[i];
+          acc[static_cast<std::size_t>(i)] += weight * ((1.0f - fy) * ((1.0f - fx) * top[mc] + fx * top[mc + 1]) +
+                                                        fy * ((1.0f - fx) * bottom[mc] + fx * bottom[mc + 1]));
+        }
+      }
+      if (!any) continue;
+      for (int i = from; i < to; ++i) row[c0 + i] += static_cast<float>(scale * acc[static_cast<std::size_t>(i)]);
+    }
   }
 }
 
@@ -148,7 +178,8 @@ void Renderer::warmUp(int threads, const std::function<void(std::size_t, std::si
 
 double Renderer::darkElectronsPerSecond() const { return instance_.config.noise.darkCurrentAtTemperatureEPerS(); }
 
-cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* truth, Rng* anomaly_rng) const {
+cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* truth, Rng* anomaly_rng,
+                                    const cv::Mat* only) const {
   const SensorConfig& c = instance_.config;
   const int w = c.detector.width_px, h = c.detector.height_px;
   const double pitch = c.detector.pitch_um;
@@ -164,6 +195,10 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
   t.ghost = ghost;
   t.stray_light = stray;
 
+  if (only && (only->rows != h || only->cols != w || only->type() != CV_8U))
+    throw std::invalid_argument("render: the mask of pixels to light is not a CV_8U image of the detector's size");
+  const std::optional<RowRuns> runs = only ? std::optional<RowRuns>(runsOf(*only)) : std::nullopt;
+  const RowRuns* lit_runs = runs ? &*runs : nullptr;
   cv::Mat rate(h, w, CV_32F, cv::Scalar(0));  // optical photoelectrons per second
   const Eigen::Vector3d sun_mask = instance_.mask_rotation.transpose() * sun;
   // Each aperture's own height decides where its light crosses the glass
@@ -212,12 +247,13 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
     }
     spot.relative_flux =
         static_cast<float>(shape.power_um2 / ApertureGeometry::from(c.mask.apertures[i]).nominalAreaUm2());
-    splat(rate, shape.drawn, hit->x(), hit->y(), electron_rate_, pitch);
+    splat(rate, shape.drawn, hit->x(), hit->y(), electron_rate_, pitch, lit_runs);
     if (ghost) {
       // Detector -> mask underside -> detector: one more round trip of the
       // lateral drift, attenuated by both reflectances.
       const Eigen::Vector2d ghost_at = *hit + 2.0 * (*hit - ap.head<2>());
-      splat(rate, shape.drawn, ghost_at.x(), ghost_at.y(), electron_rate_ * c.anomalies.ghost_reflectance, pitch);
+      splat(rate, shape.drawn, ghost_at.x(), ghost_at.y(), electron_rate_ * c.anomalies.ghost_reflectance, pitch,
+            lit_runs);
     }
     t.spots.push_back(spot);
   }
@@ -240,7 +276,9 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
     const double radius = std::hypot(0.5 * w, 0.5 * h);
     for (int r = 0; r < h; ++r) {
       float* row = electrons.ptr<float>(r);
+      const std::uint8_t* marked = only ? only->ptr<std::uint8_t>(r) : nullptr;
       for (int col = 0; col < w; ++col) {
+        if (marked && !marked[col]) continue;
         const double proj = ((col - 0.5 * (w - 1)) * std::cos(phi) + (r - 0.5 * (h - 1)) * std::sin(phi)) / radius;
         row[col] += static_cast<float>(amplitude * (1.0 - 0.5 * slope + 0.5 * slope * proj));
       }
@@ -315,11 +353,18 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
       if (count > 0) codes[idx] = readout_->sample(count, rng);
     }
   } else {
-    // Mean image (noise off) or no shot noise: direct evaluation.
+    // Mean image (noise off) or no shot noise: direct evaluation; without
+    // noise, one code for the unlit pixels.
+    const int unlit_code = static_cast<int>(
+        std::clamp(std::floor(dark_e * gain + n.black_level_dn + 0.5), 0.0, static_cast<double>(max_code)));
     for (int r = 0; r < h; ++r) {
       const float* in = signal_e.ptr<float>(r);
       for (int col = 0; col < w; ++col) {
         const int idx = r * w + col;
+        if (!noise && in[col] == 0.0f) {
+          codes[idx] = unlit_code;
+          continue;
+        }
         double e = (prnu ? in[col] * instance_.prnu_gain[idx] : in[col]) +
                    (dsnu ? dark_e * instance_.dark_scale[idx] : dark_e);
         e = std::min(e, n.full_well_e);
@@ -359,7 +404,7 @@ cv::Mat Renderer::render(const Eigen::Vector3d& sun, std::uint64_t image_seed, I
   Rng anomaly_rng(deriveSeed(image_seed, 1));
   Rng noise_rng(deriveSeed(image_seed, 2));
   ImageTruth t;
-  cv::Mat electrons = expectedElectrons(sun, &t, options.anomalies ? &anomaly_rng : nullptr);
+  cv::Mat electrons = expectedElectrons(sun, &t, options.anomalies ? &anomaly_rng : nullptr, options.only);
   cv::Mat image = detect(electrons, t.exposure_s, noise_rng, options);
   if (truth) *truth = std::move(t);
   return image;

@@ -80,6 +80,14 @@ class PatternSolver {
 
   const PatternTemplate& patternTemplate() const { return *template_; }
 
+  // Candidates are screened by their residual at the start, on every
+  // (this x candidate_stride)-th pixel: those above kScreenRatio x the best
+  // candidate's are not refined. Of 1200 thesis_ca candidates (200 images),
+  // the 381 whose fit came within 1.5 x the best fit started within 1.21 x
+  // the best start; the other 819 started 2.74 x or more above it.
+  static constexpr int kScreenStrideFactor = 4;
+  static constexpr double kScreenRatio = 2.0;
+
  private:
   struct Pixels;
   struct Level;

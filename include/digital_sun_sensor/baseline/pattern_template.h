@@ -30,16 +30,24 @@ class PatternTemplate {
     // Value at detector pixel (col, row) and its gradient [1/um] with
     // respect to the position on the detector; outside the rendered area 0.
     double at(int col, int row, double& grad_x, double& grad_y) const;
+    // The value alone (a third of the work).
+    double at(int col, int row) const;
 
    private:
     friend class PatternTemplate;
     const PatternTemplate* pattern_ = nullptr;
-    int base_u_ = 0, base_v_ = 0;  // template column, row of the interpolation origin of pixel (0, 0)
-    double wu_[4], wv_[4], du_[4], dv_[4];
+    int base_u_ = 0, base_v_ = 0;           // template column, row of the interpolation origin of pixel (0, 0)
+    double wu_[4], wv_[4], du_[4], dv_[4];  // weights, and their derivatives per um
   };
   // The detector (width x height pixels of the template's pitch) centred
   // on the pattern's centre at zero shift.
   Shifted shifted(int detector_width_px, int detector_height_px, double shift_x_um, double shift_y_um) const;
+
+  // CV_8U: the detector's pixels where the template shifted by (shift_x,
+  // shift_y) um reaches `fraction` of its brightest value on the detector
+  // (read at the nearest template pixel; no interpolation).
+  cv::Mat reaching(int detector_width_px, int detector_height_px, double shift_x_um, double shift_y_um,
+                   double fraction) const;
 
   int sidePx() const { return side_px_; }
   double pitchUm() const { return pitch_um_; }
@@ -51,5 +59,39 @@ class PatternTemplate {
   double pitch_um_ = 1.0;
   double centre_px_ = 0.0;
 };
+
+// Inline: the pattern solve calls it for every pixel of every iteration.
+inline double PatternTemplate::Shifted::at(int col, int row, double& grad_x, double& grad_y) const {
+  const int iu = col + base_u_, iv = row + base_v_;
+  const int side = pattern_->side_px_;
+  if (iu < 1 || iv < 1 || iu + 2 >= side || iv + 2 >= side) {
+    grad_x = grad_y = 0.0;
+    return 0.0;
+  }
+  double value = 0.0, gx = 0.0, gy = 0.0;
+  for (int j = 0; j < 4; ++j) {
+    const double* r = pattern_->values_.ptr<double>(iv - 1 + j) + (iu - 1);
+    const double along = wu_[0] * r[0] + wu_[1] * r[1] + wu_[2] * r[2] + wu_[3] * r[3];
+    const double slope = du_[0] * r[0] + du_[1] * r[1] + du_[2] * r[2] + du_[3] * r[3];
+    value += wv_[j] * along;
+    gx += wv_[j] * slope;
+    gy += dv_[j] * along;
+  }
+  grad_x = gx;
+  grad_y = gy;
+  return value;
+}
+
+inline double PatternTemplate::Shifted::at(int col, int row) const {
+  const int iu = col + base_u_, iv = row + base_v_;
+  const int side = pattern_->side_px_;
+  if (iu < 1 || iv < 1 || iu + 2 >= side || iv + 2 >= side) return 0.0;
+  double value = 0.0;
+  for (int j = 0; j < 4; ++j) {
+    const double* r = pattern_->values_.ptr<double>(iv - 1 + j) + (iu - 1);
+    value += wv_[j] * (wu_[0] * r[0] + wu_[1] * r[1] + wu_[2] * r[2] + wu_[3] * r[3]);
+  }
+  return value;
+}
 
 }  // namespace dss

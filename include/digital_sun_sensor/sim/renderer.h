@@ -6,15 +6,14 @@
 // thread-safe (one Renderer serves many threads).
 #pragma once
 
-#include "digital_sun_sensor/common/random.h"
-#include "digital_sun_sensor/sim/sensor_instance.h"
-
 #include <Eigen/Core>
-#include <opencv2/core.hpp>
-
 #include <functional>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <vector>
+
+#include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/sim/sensor_instance.h"
 
 namespace dss {
 
@@ -44,6 +43,11 @@ struct RenderOptions {
   bool noise = true;      // detector noise and fixed patterns (else the mean image, quantised)
   bool anomalies = true;  // per-image anomalies of the config (stray light, ghosts)
   bool threshold = true;  // on-chip thresholding if the config enables it
+  // CV_8U, the detector's size: light only the pixels it marks (the rest
+  // read as unlit), for callers that need a few of them (the pattern
+  // estimator's design images). The exposure then follows the brightest
+  // marked pixel, which must be the image's brightest for the same image.
+  const cv::Mat* only = nullptr;
 };
 
 class Renderer {
@@ -53,8 +57,9 @@ class Renderer {
 
   // Mean signal photoelectrons per pixel (CV_32F) for a sun vector in the
   // sensor frame, after exposure control; fills `truth`. Per-image anomalies
-  // are drawn from `anomaly_rng` when given.
-  cv::Mat expectedElectrons(const Eigen::Vector3d& sun, ImageTruth* truth, Rng* anomaly_rng = nullptr) const;
+  // are drawn from `anomaly_rng` when given; `only` as RenderOptions::only.
+  cv::Mat expectedElectrons(const Eigen::Vector3d& sun, ImageTruth* truth, Rng* anomaly_rng = nullptr,
+                            const cv::Mat* only = nullptr) const;
 
   // Detector: electrons (CV_32F) -> digital numbers (CV_8U for <= 8 bits, else CV_16U).
   cv::Mat detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, const RenderOptions& options = {}) const;
