@@ -66,10 +66,10 @@ class PatternEstimator : public SunEstimator {
   // The design's images for a decision are rendered only on the pixels the
   // image lights and those where the template, at either place, reaches
   // kReachMargin of the share of its brightest that the threshold keeps,
-  // with a band of kDesignBandPx around them: on 357 thesis_ca decisions
-  // these renders equalled whole ones on every pixel with the margin at
-  // 0.95 and no band (design lit: 38 000 pixels; rendered at 0.8 and 1 px:
-  // 92 000 of 262 144).
+  // with a band of kDesignBandPx around them: 357 such thesis_ca design
+  // images (200 images' decisions) equalled whole renders on every pixel
+  // with the margin at 0.95 and no band (design lit: 38 000 pixels;
+  // rendered at 0.8 and 1 px: 92 000 of 262 144).
   static constexpr double kReachMargin = 0.8;
   static constexpr int kDesignBandPx = 1;
 
