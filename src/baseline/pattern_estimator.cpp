@@ -38,10 +38,8 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
   if (config.exposure.mode == ExposureMode::kAuto && config.threshold.enabled && lit_share > 0.0 && lit_share < 1.0)
     reach_share_ = kReachMargin * lit_share;
   // Image values are codes: their variances and linear range once per code.
-  for (int code = 0; code <= config.maxCode(); ++code) {
-    variance_of_code_.push_back(noise_.varianceOfValue(code));
+  for (int code = 0; code <= config.maxCode(); ++code)
     linear_code_.push_back(noise_.inLinearRange(code, kLinearRangeSigmas));
-  }
   for (int sum = 0; sum <= 2 * config.maxCode(); ++sum)
     variance_of_half_sum_.push_back(noise_.varianceOfValue(0.5 * sum));
   if (options.sigma_images <= 0) return;
@@ -103,7 +101,7 @@ double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Ma
     for (int c = 0; c < observed.cols; ++c) {
       const auto code = static_cast<std::size_t>(e[c]);  // the design's values are codes
       if (linear_code_[code]) {
-        chi2 += (i[c] - e[c]) * (i[c] - e[c]) / variance_of_code_[code];
+        chi2 += (i[c] - e[c]) * (i[c] - e[c]) / variance_of_half_sum_[2 * code];
         ++n;
       }
     }
