@@ -100,6 +100,37 @@ TEST_F(PatternSolveTest, ShiftedTemplateReadsTheRenderAndItsGradient) {
   EXPECT_EQ(gx, 0.0);
 }
 
+// The fit on every pixel reads the template along row runs: the same values
+// and gradients as pixel by pixel, to the bit, also where a run leaves the
+// rendered area.
+TEST_F(PatternSolveTest, ShiftedTemplateReadAlongARunEqualsPixelByPixel) {
+  const PatternTemplate& pattern = solver_->patternTemplate();
+  const int w = config_->detector.width_px, h = config_->detector.height_px;
+  const int margin = (pattern.sidePx() - w) / 2;
+  const PatternTemplate::Shifted shifted = pattern.shifted(w, h, 3.71, -2.29);
+  const int count = 40;
+  std::vector<double> value(count), gx(count), gy(count), value_only(count);
+  // Inside; across the left edge of the rendered area; along its last rows.
+  for (const auto& [col, row] :
+       std::vector<std::pair<int, int>>{{100, 200}, {-margin - 20, 50}, {300, h + margin - 2}}) {
+    shifted.run(col, row, count, value.data(), gx.data(), gy.data());
+    shifted.run(col, row, count, value_only.data());
+    int lit = 0;
+    for (int i = 0; i < count; ++i) {
+      double expected_gx, expected_gy;
+      const double expected = shifted.at(col + i, row, expected_gx, expected_gy);
+      EXPECT_EQ(value[i], expected) << col + i << ", " << row;
+      EXPECT_EQ(value_only[i], expected);
+      EXPECT_EQ(gx[i], expected_gx);
+      EXPECT_EQ(gy[i], expected_gy);
+      lit += expected > 0.0;
+    }
+    if (row == 200) {
+      EXPECT_GT(lit, 0) << "the run reads some of the pattern";
+    }
+  }
+}
+
 // The image at normal incidence is the template, quantised to 8 bits and
 // cut by the threshold: read to 0.00005 deg (0.004 um at the mask height).
 TEST_F(PatternSolveTest, NormalIncidenceIsTheTemplateItself) {

@@ -189,6 +189,32 @@ TEST(Renderer, LightsOnlyTheMarkedPixels) {
   EXPECT_THROW(r.render(sun, 1, nullptr, options), std::invalid_argument);
 }
 
+TEST(Renderer, SpotsWholePixelsApartEqualTheirOwnSplats) {
+  // thesis_ma's apertures (and their ghosts) lie whole pixels apart: the
+  // render resamples their spot once and adds it at pixel offsets. Each
+  // aperture rendered alone (its own bilinear splat) sums to the same image.
+  SensorConfig c = shipped("thesis_ma");
+  c.exposure.mode = ExposureMode::kFixed;
+  c.anomalies.ghost_probability = 1.0;
+  c.anomalies.stray_light_probability = 0.0;
+  const Eigen::Vector3d sun = sunVectorFromAngles(1.3 * kRadPerDeg, -0.7 * kRadPerDeg);
+  Rng rng(3);
+  const Renderer all(SensorInstance::nominalOf(c));  // holds the shared spot cache for the others
+  const cv::Mat whole = all.expectedElectrons(sun, nullptr, &rng);
+  cv::Mat sum = cv::Mat::zeros(whole.size(), CV_32F);
+  for (const auto& aperture : shipped("thesis_ma").mask.apertures) {
+    SensorConfig alone = c;
+    alone.mask.apertures = {aperture};
+    Rng same(3);
+    sum += Renderer(SensorInstance::nominalOf(alone)).expectedElectrons(sun, nullptr, &same);
+  }
+  double peak = 0.0;
+  cv::minMaxLoc(whole, nullptr, &peak);
+  ASSERT_GT(peak, 0.0);
+  // Float rounding: one aperture alone blends its maps per pixel, several compose them first.
+  EXPECT_LT(cv::norm(whole, sum, cv::NORM_INF), 1e-5 * peak);
+}
+
 TEST(Renderer, WideFieldSpotsLeaveTheDetectorAndClassIsNearestAperture) {
   const SensorConfig c = shipped("wide_ma");
   const Renderer r(SensorInstance::nominalOf(c));

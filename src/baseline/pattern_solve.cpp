@@ -21,6 +21,15 @@ struct PatternSolver::Pixels {
     double value;  // [DN]
   };
   std::vector<Pixel> lit, dark;
+  // The same pixels as row runs in raster order (the fit on every pixel
+  // reads the template along them): pixels (col + i, row), i < count, with
+  // values[first + i] (> 0: lit).
+  struct Run {
+    int col, row, count;
+    std::size_t first;
+  };
+  std::vector<Run> runs;
+  std::vector<double> values;
   double total = 0.0;
   std::vector<cv::Mat> block_sums;  // per level, CV_64F, ceil(rows / factor) x ceil(cols / factor)
 };
@@ -149,7 +158,8 @@ PatternSolver::Pixels PatternSolver::pixelsOf(const cv::Mat& image) const {
     for (int r = 0; r < in.rows; ++r) {
       const double* from = in.ptr<double>(r);
       double* to = sums.ptr<double>(r / ratio);
-      for (int c = 0; c < in.cols; ++c) to[c / ratio] += from[c];
+      for (int c = 0, block = 0; c < in.cols; ++block)  // to[c / ratio] += from[c], without the divisions
+        for (const int end = std::min(c + ratio, in.cols); c < end; ++c) to[block] += from[c];
     }
     px.block_sums[l] = sums;
   }
@@ -157,10 +167,14 @@ PatternSolver::Pixels PatternSolver::pixelsOf(const cv::Mat& image) const {
     const double* v = value.ptr<double>(r);
     const std::uint8_t* n = near.ptr<std::uint8_t>(r);
     for (int c = 0; c < image.cols; ++c) {
+      if (!n[c]) continue;  // near holds every lit pixel
+      if (c == 0 || !n[c - 1]) px.runs.push_back({c, r, 0, px.values.size()});
+      ++px.runs.back().count;
+      px.values.push_back(v[c]);
       if (v[c] > 0.0) {
         px.lit.push_back({c, r, v[c]});
         px.total += v[c];
-      } else if (n[c]) {
+      } else {
         px.dark.push_back({c, r, v[c]});
       }
     }
@@ -336,11 +350,23 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     const PatternTemplate::Shifted shifted =
         p.shifted(config_.detector.width_px, config_.detector.height_px, d.x(), d.y());
     double vp = 0.0, pp = 0.0;
-    for (std::size_t i = 0; i < px.lit.size(); i += step_by) {
-      const auto& q = px.lit[i];
-      const double t = shifted.at(q.col, q.row);
-      vp += (q.value + offset_) * t;
-      pp += t * t;
+    if (step_by == 1) {
+      thread_local std::vector<double> t;
+      for (const auto& run : px.runs) {
+        const auto n = static_cast<std::size_t>(run.count);
+        t.resize(n);
+        shifted.run(run.col, run.row, run.count, t.data());
+        const double* q = &px.values[run.first];
+        for (std::size_t i = 0; i < n; ++i)
+          if (q[i] > 0.0) vp += (q[i] + offset_) * t[i], pp += t[i] * t[i];
+      }
+    } else {
+      for (std::size_t i = 0; i < px.lit.size(); i += step_by) {
+        const auto& q = px.lit[i];
+        const double t = shifted.at(q.col, q.row);
+        vp += (q.value + offset_) * t;
+        pp += t * t;
+      }
     }
     if (!(pp > 0.0)) return std::nullopt;
     gain = vp / pp;
@@ -349,7 +375,6 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
   Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();
   double sse = 0.0;
   int used = 0;
-  bool converged = false;
   for (int it = 0;; ++it) {
     const Eigen::Vector2d d = shiftUm(angles);
     const PatternTemplate::Shifted shifted =
@@ -366,14 +391,12 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     double n00 = 0.0, n01 = 0.0, n02 = 0.0, n11 = 0.0, n12 = 0.0, n22 = 0.0, g0 = 0.0, g1 = 0.0, g2 = 0.0;
     sse = 0.0;
     used = 0;
-    auto add = [&](const Pixels::Pixel& q, bool lit) {
-      // Censored: dark, and predicted so (most dark pixels: their value alone decides).
-      if (!lit && !(gain * shifted.at(q.col, q.row) - offset_ > floor_)) return;
-      double gx, gy;
-      const double t = shifted.at(q.col, q.row, gx, gy);
+    // A pixel of value q, lit or not, where the template reads t with gradient (gx, gy).
+    auto add = [&](double q, bool lit, double t, double gx, double gy) {
       const double predicted = gain * t - offset_;
-      if (lit && q.value >= top_ && predicted >= top_) return;  // saturated, and predicted so
-      const double residual = (lit ? q.value : floor_) - predicted;
+      if (!lit && !(predicted > floor_)) return;          // censored: dark, and predicted so
+      if (lit && q >= top_ && predicted >= top_) return;  // saturated, and predicted so
+      const double residual = (lit ? q : floor_) - predicted;
       // d(predicted)/d(angles) = -gain grad P . d(shift)/d(angles)
       const double ja = -gain * (dd(0, 0) * gx + dd(1, 0) * gy), jb = -gain * (dd(0, 1) * gx + dd(1, 1) * gy);
       n00 += ja * ja, n01 += ja * jb, n02 += ja * t, n11 += jb * jb, n12 += jb * t, n22 += t * t;
@@ -381,20 +404,42 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
       sse += residual * residual;
       ++used;
     };
-    for (std::size_t i = 0; i < px.lit.size(); i += step_by) add(px.lit[i], true);
-    for (std::size_t i = 0; i < px.dark.size(); i += step_by) add(px.dark[i], false);
+    if (step_by == 1) {
+      thread_local std::vector<double> t, gx, gy;
+      for (const auto& run : px.runs) {
+        const auto n = static_cast<std::size_t>(run.count);
+        t.resize(n), gx.resize(n), gy.resize(n);
+        shifted.run(run.col, run.row, run.count, t.data(), gx.data(), gy.data());
+        const double* q = &px.values[run.first];
+        for (std::size_t i = 0; i < n; ++i) add(q[i], q[i] > 0.0, t[i], gx[i], gy[i]);
+      }
+    } else {
+      auto visit = [&](const Pixels::Pixel& q, bool lit) {
+        // Most dark pixels are censored: their value alone decides.
+        if (!lit && !(gain * shifted.at(q.col, q.row) - offset_ > floor_)) return;
+        double gx, gy;
+        const double t = shifted.at(q.col, q.row, gx, gy);
+        add(q.value, lit, t, gx, gy);
+      };
+      for (std::size_t i = 0; i < px.lit.size(); i += step_by) visit(px.lit[i], true);
+      for (std::size_t i = 0; i < px.dark.size(); i += step_by) visit(px.dark[i], false);
+    }
     normal << n00, n01, n02, n01, n11, n12, n02, n12, n22;
     const Eigen::Vector3d gradient(g0, g1, g2);
     out.iterations = it;
-    if (converged || it == iterations || used < 4) break;
+    if (it == iterations || used < 4) break;
     const Eigen::Vector3d step = normal.ldlt().solve(gradient);
     if (!step.allFinite()) return std::nullopt;
     angles += step.head<2>();
     gain += step[2];
     // Each step is 20-40 times smaller than the one before: after one below
     // 1e-8 rad the solution lies within 1e-9 rad (3e-4 of thesis_ca's
-    // sigma). One more pass: residual and normal matrix at the solution.
-    converged = step.head<2>().norm() < 1e-8;
+    // sigma), and this pass's normal matrix and residual stand for the
+    // solution's (another pass would change them by the step's square).
+    if (step.head<2>().norm() < 1e-8) {
+      out.iterations = it + 1;
+      break;
+    }
   }
   if (used < 4 || !angles.allFinite()) return std::nullopt;
   const Eigen::Matrix3d inverse = normal.inverse();

@@ -57,6 +57,44 @@ PatternTemplate::Shifted PatternTemplate::shifted(int detector_width_px, int det
   return s;
 }
 
+void PatternTemplate::Shifted::run(int col, int row, int count, double* value, double* grad_x, double* grad_y) const {
+  const int iu = col + base_u_, iv = row + base_v_;
+  const int side = pattern_->side_px_;
+  if (iu < 1 || iv < 1 || iu + count + 1 >= side || iv + 2 >= side) {  // partly outside: pixel by pixel
+    for (int i = 0; i < count; ++i) value[i] = at(col + i, row, grad_x[i], grad_y[i]);
+    return;
+  }
+  // Row by row of the four taps, each summed in at()'s order (bit-identical results).
+  for (int i = 0; i < count; ++i) value[i] = grad_x[i] = grad_y[i] = 0.0;
+  for (int j = 0; j < 4; ++j) {
+    const double* r = pattern_->values_.ptr<double>(iv - 1 + j) + (iu - 1);
+    const double wv = wv_[j], dv = dv_[j];
+    for (int i = 0; i < count; ++i) {
+      const double along = wu_[0] * r[i] + wu_[1] * r[i + 1] + wu_[2] * r[i + 2] + wu_[3] * r[i + 3];
+      const double slope = du_[0] * r[i] + du_[1] * r[i + 1] + du_[2] * r[i + 2] + du_[3] * r[i + 3];
+      value[i] += wv * along;
+      grad_x[i] += wv * slope;
+      grad_y[i] += dv * along;
+    }
+  }
+}
+
+void PatternTemplate::Shifted::run(int col, int row, int count, double* value) const {
+  const int iu = col + base_u_, iv = row + base_v_;
+  const int side = pattern_->side_px_;
+  if (iu < 1 || iv < 1 || iu + count + 1 >= side || iv + 2 >= side) {
+    for (int i = 0; i < count; ++i) value[i] = at(col + i, row);
+    return;
+  }
+  for (int i = 0; i < count; ++i) value[i] = 0.0;
+  for (int j = 0; j < 4; ++j) {
+    const double* r = pattern_->values_.ptr<double>(iv - 1 + j) + (iu - 1);
+    const double wv = wv_[j];
+    for (int i = 0; i < count; ++i)
+      value[i] += wv * (wu_[0] * r[i] + wu_[1] * r[i + 1] + wu_[2] * r[i + 2] + wu_[3] * r[i + 3]);
+  }
+}
+
 cv::Mat PatternTemplate::reaching(int detector_width_px, int detector_height_px, double shift_x_um, double shift_y_um,
                                   double fraction) const {
   // Pixel (c, r) lies nearest template pixel (c + u0, r + v0).

@@ -43,12 +43,14 @@ RowRuns runsOf(const cv::Mat& mask) {
   return runs;
 }
 
-// Adds `scale` x (blended spot) centred at detector position (cx, cy) [um],
-// on the pixels of `only` where given.
-void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double cy_um, double scale, double pitch_um,
-           const RowRuns* only = nullptr) {
-  const int w = image.cols, h = image.rows;
-  const double half_w = 0.5 * (w - 1), half_h = 0.5 * (h - 1);
+// A blend's footprint on the detector for a spot centred at (cx, cy) um:
+// pixel columns [c0, c1] and rows [r0, r1], not clipped to the detector.
+struct Footprint {
+  int c0, c1, r0, r1;
+};
+
+Footprint footprintOf(const SpotCache::Blend& blend, double cx_um, double cy_um, double pitch_um, double half_w,
+                      double half_h) {
   double u_lo = std::numeric_limits<double>::max(), u_hi = -u_lo, v_lo = u_lo, v_hi = -u_lo;
   for (int k = 0; k < blend.count; ++k) {
     const SpotMap& m = *blend.maps[k];
@@ -57,69 +59,135 @@ void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double c
     u_hi = std::max(u_hi, m.u0_um + (m.cols - 1) * m.step_um);
     v_hi = std::max(v_hi, m.v0_um + (m.rows - 1) * m.step_um);
   }
-  const int c0 = std::max(0, static_cast<int>(std::ceil((cx_um + u_lo) / pitch_um + half_w)));
-  const int c1 = std::min(w - 1, static_cast<int>(std::floor((cx_um + u_hi) / pitch_um + half_w)));
-  const int r0 = std::max(0, static_cast<int>(std::ceil((cy_um + v_lo) / pitch_um + half_h)));
-  const int r1 = std::min(h - 1, static_cast<int>(std::floor((cy_um + v_hi) / pitch_um + half_h)));
-  if (c1 < c0) return;
-  // Each map's columns that fall inside it, and their sample index and
-  // weight, once per splat; then row by row, each map's row and vertical
-  // weights once: the same bilinear lookup as SpotMap::sample, summed over
-  // the maps in order.
-  thread_local std::array<std::vector<int>, 4> sample_col;
-  thread_local std::array<std::vector<float>, 4> sample_fx;
-  std::array<int, 4> first{}, last{};  // [first, last] of columns inside map k, relative to c0
-  for (int k = 0; k < blend.count; ++k) {
-    const SpotMap& m = *blend.maps[k];
-    sample_col[k].assign(static_cast<std::size_t>(c1 - c0 + 1), 0);
-    sample_fx[k].assign(static_cast<std::size_t>(c1 - c0 + 1), 0.0f);
-    first[k] = c1 - c0 + 1;
-    last[k] = -1;
-    for (int c = c0; c <= c1; ++c) {
-      const double x = ((c - half_w) * pitch_um - cx_um - m.u0_um) / m.step_um;
-      if (!(x >= 0.0 && x < m.cols - 1)) continue;
-      const int i = c - c0;
-      first[k] = std::min(first[k], i);
-      last[k] = std::max(last[k], i);
-      sample_col[k][static_cast<std::size_t>(i)] = static_cast<int>(x);
-      sample_fx[k][static_cast<std::size_t>(i)] = static_cast<float>(x - static_cast<int>(x));
+  return {static_cast<int>(std::ceil((cx_um + u_lo) / pitch_um + half_w)),
+          static_cast<int>(std::floor((cx_um + u_hi) / pitch_um + half_w)),
+          static_cast<int>(std::ceil((cy_um + v_lo) / pitch_um + half_h)),
+          static_cast<int>(std::floor((cy_um + v_hi) / pitch_um + half_h))};
+}
+
+// Bilinear reads of a blend's maps along pixel columns [c0, c1]: each map's
+// columns that fall inside it, with their sample index and weight, once per
+// spot; then row by row, each map's row and vertical weights once: the same
+// bilinear lookup as SpotMap::sample, summed over the maps in order.
+class BlendReader {
+ public:
+  BlendReader(const SpotCache::Blend& blend, int c0, int c1, double cx_um, double half_w, double pitch_um)
+      : blend_(blend) {
+    for (int k = 0; k < blend.count; ++k) {
+      const SpotMap& m = *blend.maps[k];
+      col_[k].assign(static_cast<std::size_t>(c1 - c0 + 1), 0);
+      fx_[k].assign(static_cast<std::size_t>(c1 - c0 + 1), 0.0f);
+      first_[k] = c1 - c0 + 1;
+      last_[k] = -1;
+      for (int c = c0; c <= c1; ++c) {
+        const double x = ((c - half_w) * pitch_um - cx_um - m.u0_um) / m.step_um;
+        if (!(x >= 0.0 && x < m.cols - 1)) continue;
+        const int i = c - c0;
+        first_[k] = std::min(first_[k], i);
+        last_[k] = std::max(last_[k], i);
+        col_[k][static_cast<std::size_t>(i)] = static_cast<int>(x);
+        fx_[k][static_cast<std::size_t>(i)] = static_cast<float>(x - static_cast<int>(x));
+      }
     }
   }
+
+  // acc[from, to) (columns c0 + from ...) = the blend at v_um below the
+  // spot's centre; false (acc untouched) where no map reaches that row.
+  bool row(double v_um, int from, int to, float* acc) const {
+    bool any = false;
+    for (int k = 0; k < blend_.count; ++k) {
+      const SpotMap& m = *blend_.maps[k];
+      const double y = (v_um - m.v0_um) / m.step_um;
+      if (!(y >= 0.0 && y < m.rows - 1)) continue;
+      if (!any) std::fill(acc + from, acc + to, 0.0f);
+      any = true;
+      const int mr = static_cast<int>(y);
+      const float fy = static_cast<float>(y - mr);
+      const float* top = &m.values[static_cast<std::size_t>(mr) * m.cols];
+      const float* bottom = top + m.cols;
+      const float weight = blend_.weights[k];
+      const int* col = col_[k].data();
+      const float* frac = fx_[k].data();
+      for (int i = std::max(first_[k], from), i_end = std::min(last_[k] + 1, to); i < i_end; ++i) {
+        const int mc = col[i];
+        const float fx = frac[i];
+        acc[i] += weight * ((1.0f - fy) * ((1.0f - fx) * top[mc] + fx * top[mc + 1]) +
+                            fy * ((1.0f - fx) * bottom[mc] + fx * bottom[mc + 1]));
+      }
+    }
+    return any;
+  }
+
+ private:
+  const SpotCache::Blend& blend_;
+  std::array<std::vector<int>, 4> col_;
+  std::array<std::vector<float>, 4> fx_;
+  std::array<int, 4> first_{}, last_{};  // [first, last] of columns inside map k, relative to c0
+};
+
+// Adds `scale` x (blended spot) centred at detector position (cx, cy) [um],
+// on the pixels of `only` where given.
+void splat(cv::Mat& image, const SpotCache::Blend& blend, double cx_um, double cy_um, double scale, double pitch_um,
+           const RowRuns* only = nullptr) {
+  const int w = image.cols, h = image.rows;
+  const double half_w = 0.5 * (w - 1), half_h = 0.5 * (h - 1);
+  const Footprint f = footprintOf(blend, cx_um, cy_um, pitch_um, half_w, half_h);
+  const int c0 = std::max(0, f.c0), c1 = std::min(w - 1, f.c1);
+  const int r0 = std::max(0, f.r0), r1 = std::min(h - 1, f.r1);
+  if (c1 < c0) return;
+  const BlendReader reader(blend, c0, c1, cx_um, half_w, pitch_um);
   thread_local std::vector<float> acc;
   acc.resize(static_cast<std::size_t>(c1 - c0 + 1));
   const std::vector<std::pair<int, int>> whole_row{{c0, c1 + 1}};
   for (int r = r0; r <= r1; ++r) {
-    const double v = (r - half_h) * pitch_um - cy_um;
     float* row = image.ptr<float>(r);
     for (const auto& [begin, end] : only ? (*only)[static_cast<std::size_t>(r)] : whole_row) {
       const int from = std::max(begin, c0) - c0, to = std::min(end, c1 + 1) - c0;  // [from, to) of acc
-      if (to <= from) continue;
-      std::fill(acc.begin() + from, acc.begin() + to, 0.0f);
-      bool any = false;
-      for (int k = 0; k < blend.count; ++k) {
-        const SpotMap& m = *blend.maps[k];
-        const double y = (v - m.v0_um) / m.step_um;
-        if (!(y >= 0.0 && y < m.rows - 1)) continue;
-        any = true;
-        const int mr = static_cast<int>(y);
-        const float fy = static_cast<float>(y - mr);
-        const float* top = &m.values[static_cast<std::size_t>(mr) * m.cols];
-        const float* bottom = top + m.cols;
-        const float weight = blend.weights[k];
-        const int* col = sample_col[k].data();
-        const float* frac = sample_fx[k].data();
-        for (int i = std::max(first[k], from), i_end = std::min(last[k] + 1, to); i < i_end; ++i) {
-          const int mc = col[i];
-          const float fx = frac[i];
-          acc[static_cast<std::size_t>(i)] += weight * ((1.0f - fy) * ((1.0f - fx) * top[mc] + fx * top[mc + 1]) +
-                                                        fy * ((1.0f - fx) * bottom[mc] + fx * bottom[mc + 1]));
-        }
-      }
-      if (!any) continue;
+      if (to <= from || !reader.row((r - half_h) * pitch_um - cy_um, from, to, acc.data())) continue;
       for (int i = from; i < to; ++i) row[c0 + i] += static_cast<float>(scale * acc[static_cast<std::size_t>(i)]);
     }
   }
 }
+
+// A spot resampled once on the pixel grid, to be added at whole-pixel
+// offsets: apertures that lie on a lattice of the pixel pitch (thesis_ca's
+// coded mask) share their spots' sub-pixel phase, and each then costs one
+// addition per pixel instead of a bilinear read. Its values are what
+// splat() would add (scale x the blend, rounded to float the same way).
+struct PixelSpot {
+  Footprint at;               // where it lies when centred at its first aperture's position
+  std::vector<float> values;  // (r1 - r0 + 1) x (c1 - c0 + 1)
+
+  PixelSpot(const SpotCache::Blend& blend, double cx_um, double cy_um, double scale, double pitch_um, int w, int h) {
+    const double half_w = 0.5 * (w - 1), half_h = 0.5 * (h - 1);
+    at = footprintOf(blend, cx_um, cy_um, pitch_um, half_w, half_h);
+    const int cols = std::max(0, at.c1 - at.c0 + 1), rows = std::max(0, at.r1 - at.r0 + 1);
+    values.assign(static_cast<std::size_t>(cols) * rows, 0.0f);
+    if (cols == 0) return;
+    const BlendReader reader(blend, at.c0, at.c1, cx_um, half_w, pitch_um);
+    std::vector<float> acc(static_cast<std::size_t>(cols));
+    for (int r = at.r0; r <= at.r1; ++r) {
+      if (!reader.row((r - half_h) * pitch_um - cy_um, 0, cols, acc.data())) continue;
+      float* out = &values[static_cast<std::size_t>(r - at.r0) * cols];
+      for (int i = 0; i < cols; ++i) out[i] = static_cast<float>(scale * acc[static_cast<std::size_t>(i)]);
+    }
+  }
+
+  // Adds the spot moved by (dc, dr) pixels, on the pixels of `only` where given.
+  void addTo(cv::Mat& image, int dc, int dr, const RowRuns* only) const {
+    const int cols = at.c1 - at.c0 + 1;
+    const int c0 = std::max(0, at.c0 + dc), c1 = std::min(image.cols - 1, at.c1 + dc);
+    const int r0 = std::max(0, at.r0 + dr), r1 = std::min(image.rows - 1, at.r1 + dr);
+    if (c1 < c0) return;
+    const std::vector<std::pair<int, int>> whole_row{{c0, c1 + 1}};
+    for (int r = r0; r <= r1; ++r) {
+      float* row = image.ptr<float>(r);
+      const float* in = &values[static_cast<std::size_t>(r - dr - at.r0) * cols] - (at.c0 + dc);
+      for (const auto& [begin, end] : only ? (*only)[static_cast<std::size_t>(r)] : whole_row)
+        for (int c = std::max(begin, c0), c_end = std::min(end, c1 + 1); c < c_end; ++c) row[c] += in[c];
+    }
+  }
+};
 
 // An image's spot for an aperture shape: what is splatted (the cache's
 // blend, or its composition into one map where several apertures share it)
@@ -129,6 +197,49 @@ struct ShapeSpot {
   double power_um2 = 0.0;
   SpotCache::Blend drawn;
 };
+
+// A spot of the image: its blend, centre on the detector [um] and scale.
+struct SpotToAdd {
+  const SpotCache::Blend* blend;
+  Eigen::Vector2d centre_um;
+  double scale;
+};
+
+// Adds the spots in order. Spots of one blend and scale whose centres lie
+// whole pixels apart (within 1e-9 px) are resampled once (PixelSpot).
+void addSpots(cv::Mat& image, const std::vector<SpotToAdd>& spots, double pitch_um, const RowRuns* only) {
+  constexpr double kSamePhasePx = 1e-9;
+  // Per spot: the first spot of its phase group, and its offset from it [px].
+  std::vector<std::size_t> first(spots.size());
+  std::vector<std::array<int, 2>> offset(spots.size(), {0, 0});
+  std::vector<int> members(spots.size(), 0);
+  for (std::size_t j = 0; j < spots.size(); ++j) {
+    first[j] = j;
+    for (std::size_t i = 0; i < j; ++i) {
+      if (first[i] != i || spots[i].blend != spots[j].blend || spots[i].scale != spots[j].scale) continue;
+      const Eigen::Vector2d d = (spots[j].centre_um - spots[i].centre_um) / pitch_um;
+      const Eigen::Vector2d whole = d.array().round();
+      if ((d - whole).cwiseAbs().maxCoeff() > kSamePhasePx) continue;
+      first[j] = i;
+      offset[j] = {static_cast<int>(whole.x()), static_cast<int>(whole.y())};
+      break;
+    }
+    ++members[first[j]];
+  }
+  std::vector<std::unique_ptr<PixelSpot>> resampled(spots.size());
+  for (std::size_t j = 0; j < spots.size(); ++j) {
+    const SpotToAdd& s = spots[j];
+    const std::size_t f = first[j];
+    if (members[f] < 2) {
+      splat(image, *s.blend, s.centre_um.x(), s.centre_um.y(), s.scale, pitch_um, only);
+      continue;
+    }
+    if (!resampled[f])
+      resampled[f] = std::make_unique<PixelSpot>(*spots[f].blend, spots[f].centre_um.x(), spots[f].centre_um.y(),
+                                                 spots[f].scale, pitch_um, image.cols, image.rows);
+    resampled[f]->addTo(image, offset[j][0], offset[j][1], only);
+  }
+}
 
 }  // namespace
 
@@ -210,6 +321,7 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
   // once where several apertures share it (a regular mask: all of them).
   std::vector<std::string> keys;
   std::map<std::string, ShapeSpot> shapes;
+  std::vector<SpotToAdd> spots;
   for (const auto& aperture : instance_.apertures) {
     keys.push_back(ApertureGeometry::from(aperture).key());
     ++shapes[keys.back()].apertures;
@@ -247,16 +359,16 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
     }
     spot.relative_flux =
         static_cast<float>(shape.power_um2 / ApertureGeometry::from(c.mask.apertures[i]).nominalAreaUm2());
-    splat(rate, shape.drawn, hit->x(), hit->y(), electron_rate_, pitch, lit_runs);
+    spots.push_back({&shape.drawn, *hit, electron_rate_});
     if (ghost) {
       // Detector -> mask underside -> detector: one more round trip of the
       // lateral drift, attenuated by both reflectances.
-      const Eigen::Vector2d ghost_at = *hit + 2.0 * (*hit - ap.head<2>());
-      splat(rate, shape.drawn, ghost_at.x(), ghost_at.y(), electron_rate_ * c.anomalies.ghost_reflectance, pitch,
-            lit_runs);
+      spots.push_back(
+          {&shape.drawn, *hit + 2.0 * (*hit - ap.head<2>()), electron_rate_ * c.anomalies.ghost_reflectance});
     }
     t.spots.push_back(spot);
   }
+  addSpots(rate, spots, pitch, lit_runs);
   t.subfov_class = subFovClass(c, t);
 
   double peak_rate = 0.0;

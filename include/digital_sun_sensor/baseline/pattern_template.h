@@ -32,6 +32,12 @@ class PatternTemplate {
     double at(int col, int row, double& grad_x, double& grad_y) const;
     // The value alone (a third of the work).
     double at(int col, int row) const;
+    // at() for pixels (col + i, row), i < count, into value[i], grad_x[i],
+    // grad_y[i]: the same results, computed along the row so that the
+    // compiler can vectorise across pixels.
+    void run(int col, int row, int count, double* value, double* grad_x, double* grad_y) const;
+    // The values alone.
+    void run(int col, int row, int count, double* value) const;
 
    private:
     friend class PatternTemplate;
