@@ -77,6 +77,37 @@ TEST(Screen, HotPixelsAreRemovedAndTheSpotKept) {
   EXPECT_EQ(raw_cleaned.at<std::uint16_t>(31, 31), 900);
 }
 
+// The groups are OpenCV's 8-connected components: on seeded random images of
+// every density (diagonal chains, shapes that join further down) the pixels
+// kept are exactly those of components of at least min_px.
+TEST(Screen, SmallGroupsAreOpenCvsEightConnectedComponents) {
+  std::mt19937 rng(29);
+  for (const double density : {0.05, 0.2, 0.4, 0.6}) {
+    cv::Mat image(97, 131, CV_8UC1, cv::Scalar(0));
+    std::bernoulli_distribution lit(density);
+    for (int r = 0; r < image.rows; ++r)
+      for (int c = 0; c < image.cols; ++c)
+        if (lit(rng)) image.at<std::uint8_t>(r, c) = static_cast<std::uint8_t>(1 + rng() % 255);
+    cv::Mat labels, stats, centroids;
+    cv::connectedComponentsWithStats(image > 0, labels, stats, centroids, 8, CV_32S);
+    for (const int min_px : {2, 5, 12}) {
+      cv::Mat expected = image.clone();
+      int removed = 0;
+      for (int r = 0; r < image.rows; ++r)
+        for (int c = 0; c < image.cols; ++c) {
+          const int label = labels.at<int>(r, c);
+          if (label > 0 && stats.at<int>(label, cv::CC_STAT_AREA) < min_px) {
+            expected.at<std::uint8_t>(r, c) = 0;
+            ++removed;
+          }
+        }
+      EXPECT_EQ(cv::countNonZero(removeSmallSpots(image, 0.0, 0.0, min_px) != expected), 0)
+          << "density " << density << ", min_px " << min_px;
+      if (density == 0.2) EXPECT_GT(removed, 0);
+    }
+  }
+}
+
 // What the screen hands its estimator is what screenedImage gives a consumer
 // that re-reads the image (in-flight recalibration): the hot pixel gone.
 TEST(Screen, ScreenedImageIsWhatTheEstimatorIsGiven) {

@@ -142,7 +142,7 @@ Eigen::Vector2d PatternSolver::anglesOfShift(const Eigen::Vector2d& shift_um) co
 PatternSolver::Pixels PatternSolver::pixelsOf(const cv::Mat& image) const {
   cv::Mat value;
   image.convertTo(value, CV_64F);
-  const cv::Mat lit = value > 0.0;
+  const cv::Mat lit = image > 0;
   cv::Mat near;
   const int band = 2 * options_.dark_band_px + 1;
   cv::dilate(lit, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(band, band)));

@@ -100,13 +100,15 @@ cv::Mat PatternTemplate::reaching(int detector_width_px, int detector_height_px,
   // Pixel (c, r) lies nearest template pixel (c + u0, r + v0).
   const int u0 = static_cast<int>(std::lround(centre_px_ - 0.5 * (detector_width_px - 1) - shift_x_um / pitch_um_));
   const int v0 = static_cast<int>(std::lround(centre_px_ - 0.5 * (detector_height_px - 1) - shift_y_um / pitch_um_));
-  cv::Mat seen = cv::Mat::zeros(detector_height_px, detector_width_px, CV_64F);
+  cv::Mat out = cv::Mat::zeros(detector_height_px, detector_width_px, CV_8U);
   const cv::Rect inside = cv::Rect(u0, v0, detector_width_px, detector_height_px) & cv::Rect(0, 0, side_px_, side_px_);
-  if (inside.area() > 0) values_(inside).copyTo(seen(inside - cv::Point(u0, v0)));
+  if (inside.area() == 0) return out;
+  // The part of the detector off the template reads 0: the peak is the covered part's (at least 0).
   double peak = 0.0;
-  cv::minMaxLoc(seen, nullptr, &peak);
-  cv::Mat out = seen >= fraction * peak;
-  if (!(peak > 0.0)) out.setTo(0);
+  cv::minMaxLoc(values_(inside), nullptr, &peak);
+  if (!(peak > 0.0)) return out;
+  cv::Mat(values_(inside) >= fraction * peak).copyTo(out(inside - cv::Point(u0, v0)));
+  if (fraction <= 0.0) out.setTo(255);  // the uncovered part's zeros reach it too
   return out;
 }
 
