@@ -413,9 +413,24 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
   const bool dsnu = noise && !instance_.dark_scale.empty();
   // Per-thread scratch: rendering runs on several threads, each image reuses it.
   thread_local std::vector<int> codes, electrons, touched;
-  codes.resize(n_px);
+
+  // On-chip thresholding through a lookup table over codes.
+  std::vector<int> lut(max_code + 1);
+  const bool threshold = options.threshold && c.threshold.enabled;
+  const double level = c.threshold.level_fraction * max_code;
+  for (int d = 0; d <= max_code; ++d) {
+    lut[d] = d;
+    if (!threshold) continue;
+    if (d < level) {
+      lut[d] = 0;
+    } else if (c.threshold.rescale) {
+      lut[d] = static_cast<int>(std::floor((d - level) / (max_code - level) * max_code + 0.5));
+    }
+  }
+  cv::Mat out(h, w, n.bit_depth <= 8 ? CV_8U : CV_16U);
 
   if (noise && n.shot_noise) {
+    codes.resize(n_px);
     // Electron counts: Poisson(signal) where there is signal, plus dark
     // electrons as a thinned Poisson process over the whole array (sums of
     // independent Poisson variables are Poisson: the split is exact).
@@ -465,42 +480,32 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
       if (count > 0) codes[idx] = readout_->sample(count, rng);
     }
   } else {
-    // Mean image (noise off) or no shot noise: direct evaluation; without
-    // noise, one code for the unlit pixels.
+    // Mean image (noise off) or no shot noise: direct evaluation, written
+    // through the table as it goes; without noise, one value for the unlit pixels.
     const int unlit_code = static_cast<int>(
         std::clamp(std::floor(dark_e * gain + n.black_level_dn + 0.5), 0.0, static_cast<double>(max_code)));
+    if (!noise) out.setTo(lut[unlit_code]);
+    const bool eight_bit = out.depth() == CV_8U;
     for (int r = 0; r < h; ++r) {
       const float* in = signal_e.ptr<float>(r);
       for (int col = 0; col < w; ++col) {
+        if (!noise && in[col] == 0.0f) continue;
         const int idx = r * w + col;
-        if (!noise && in[col] == 0.0f) {
-          codes[idx] = unlit_code;
-          continue;
-        }
         double e = (prnu ? in[col] * instance_.prnu_gain[idx] : in[col]) +
                    (dsnu ? dark_e * instance_.dark_scale[idx] : dark_e);
         e = std::min(e, n.full_well_e);
         if (noise && n.read_noise_e > 0.0) e += n.read_noise_e * rng.normal();
         const double dn = std::floor(e * gain + n.black_level_dn + 0.5);
-        codes[idx] = static_cast<int>(std::clamp(dn, 0.0, static_cast<double>(max_code)));
+        const int value = lut[static_cast<int>(std::clamp(dn, 0.0, static_cast<double>(max_code)))];
+        if (eight_bit)
+          out.ptr<std::uint8_t>(r)[col] = static_cast<std::uint8_t>(value);
+        else
+          out.ptr<std::uint16_t>(r)[col] = static_cast<std::uint16_t>(value);
       }
     }
+    return out;
   }
 
-  // On-chip thresholding through a lookup table over codes.
-  std::vector<int> lut(max_code + 1);
-  const bool threshold = options.threshold && c.threshold.enabled;
-  const double level = c.threshold.level_fraction * max_code;
-  for (int d = 0; d <= max_code; ++d) {
-    lut[d] = d;
-    if (!threshold) continue;
-    if (d < level) {
-      lut[d] = 0;
-    } else if (c.threshold.rescale) {
-      lut[d] = static_cast<int>(std::floor((d - level) / (max_code - level) * max_code + 0.5));
-    }
-  }
-  cv::Mat out(h, w, n.bit_depth <= 8 ? CV_8U : CV_16U);
   if (out.depth() == CV_8U) {
     auto* p = out.ptr<std::uint8_t>();
     for (int i = 0; i < n_px; ++i) p[i] = static_cast<std::uint8_t>(lut[codes[i]]);
