@@ -52,7 +52,7 @@ Cleaned clean(const cv::Mat& image, double threshold_dn, double floor_dn, int mi
       if (i == 0 || lit[i - 1].y != y) {  // a new row: the previous one lies above it if it is y - 1
         const bool touching = i > 0 && lit[i - 1].y == y - 1;
         above = touching ? row_begin : i;
-        above_end = touching ? i : i;
+        above_end = i;
         row_begin = i;
       }
       if (i > row_begin && lit[i - 1].x == x - 1) parent[root(i)] = root(i - 1);

@@ -9,6 +9,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "digital_sun_sensor/common/units.h"
@@ -206,24 +207,25 @@ struct SpotToAdd {
 };
 
 // Adds the spots in order. Spots of one blend and scale whose centres lie
-// whole pixels apart (within 1e-9 px) are resampled once (PixelSpot).
+// whole pixels apart (the same sub-pixel phase to 1e-9 px) are resampled
+// once (PixelSpot).
 void addSpots(cv::Mat& image, const std::vector<SpotToAdd>& spots, double pitch_um, const RowRuns* only) {
   constexpr double kSamePhasePx = 1e-9;
   // Per spot: the first spot of its phase group, and its offset from it [px].
   std::vector<std::size_t> first(spots.size());
   std::vector<std::array<int, 2>> offset(spots.size(), {0, 0});
   std::vector<int> members(spots.size(), 0);
+  std::map<std::tuple<const SpotCache::Blend*, double, long long, long long>, std::size_t> group_of;
   for (std::size_t j = 0; j < spots.size(); ++j) {
-    first[j] = j;
-    for (std::size_t i = 0; i < j; ++i) {
-      if (first[i] != i || spots[i].blend != spots[j].blend || spots[i].scale != spots[j].scale) continue;
-      const Eigen::Vector2d d = (spots[j].centre_um - spots[i].centre_um) / pitch_um;
-      const Eigen::Vector2d whole = d.array().round();
-      if ((d - whole).cwiseAbs().maxCoeff() > kSamePhasePx) continue;
-      first[j] = i;
-      offset[j] = {static_cast<int>(whole.x()), static_cast<int>(whole.y())};
-      break;
-    }
+    const Eigen::Vector2d px = spots[j].centre_um / pitch_um;
+    const auto phase = [](double x) { return std::llround((x - std::floor(x)) / kSamePhasePx); };
+    const std::size_t f =
+        group_of.emplace(std::make_tuple(spots[j].blend, spots[j].scale, phase(px.x()), phase(px.y())), j)
+            .first->second;
+    const Eigen::Vector2d d = px - spots[f].centre_um / pitch_um;
+    const Eigen::Vector2d whole = d.array().round();
+    first[j] = (d - whole).cwiseAbs().maxCoeff() <= kSamePhasePx ? f : j;
+    if (first[j] != j) offset[j] = {static_cast<int>(whole.x()), static_cast<int>(whole.y())};
     ++members[first[j]];
   }
   std::vector<std::unique_ptr<PixelSpot>> resampled(spots.size());
