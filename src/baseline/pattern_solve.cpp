@@ -343,6 +343,7 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
                                                   int iterations) const {
   const auto step_by = static_cast<std::size_t>(std::max(stride, 1));
   const PatternTemplate& p = *template_;
+  thread_local std::vector<double> t, gx, gy;  // the template along a pixel run (stride 1)
   // The gain that best explains the lit pixels at the start's shift.
   double gain = 0.0;
   {
@@ -351,7 +352,6 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
         p.shifted(config_.detector.width_px, config_.detector.height_px, d.x(), d.y());
     double vp = 0.0, pp = 0.0;
     if (step_by == 1) {
-      thread_local std::vector<double> t;
       for (const auto& run : px.runs) {
         const auto n = static_cast<std::size_t>(run.count);
         t.resize(n);
@@ -405,7 +405,6 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
       ++used;
     };
     if (step_by == 1) {
-      thread_local std::vector<double> t, gx, gy;
       for (const auto& run : px.runs) {
         const auto n = static_cast<std::size_t>(run.count);
         t.resize(n), gx.resize(n), gy.resize(n);
