@@ -139,47 +139,75 @@ Eigen::Vector2d PatternSolver::anglesOfShift(const Eigen::Vector2d& shift_um) co
   return angles;
 }
 
-PatternSolver::Pixels PatternSolver::pixelsOf(const cv::Mat& image) const {
-  cv::Mat value;
-  image.convertTo(value, CV_64F);
+namespace {
+
+// Sums of the image's values over blocks of `factor` x `factor` pixels
+// (the blocks at the right and bottom edges cut short). The values are
+// codes: their sums are whole numbers, exact in any order.
+template <typename Code>
+void addBlockSums(const cv::Mat& image, int factor, cv::Mat& sums) {
+  for (int r = 0; r < image.rows; ++r) {
+    const Code* from = image.ptr<Code>(r);
+    double* to = sums.ptr<double>(r / factor);
+    for (int c = 0, block = 0; c < image.cols; ++block) {
+      std::uint32_t s = 0;
+      for (const int end = std::min(c + factor, image.cols); c < end; ++c) s += from[c];
+      to[block] += s;
+    }
+  }
+}
+
+}  // namespace
+
+void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
+  if (image.type() != CV_8U && image.type() != CV_16U)
+    throw std::invalid_argument("pattern solve: the image is not CV_8U or CV_16U");
   const cv::Mat lit = image > 0;
   cv::Mat near;
   const int band = 2 * options_.dark_band_px + 1;
   cv::dilate(lit, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(band, band)));
-  Pixels px;
+  px.lit.clear(), px.dark.clear(), px.runs.clear(), px.values.clear();
+  px.total = 0.0;
   // Finest level first: each coarser one sums the finer one's blocks.
   px.block_sums.resize(levels_.size());
   for (std::size_t l = levels_.size(); l-- > 0;) {
     const int f = levels_[l].factor;
-    const bool from_finer = l + 1 < levels_.size();
-    const cv::Mat& in = from_finer ? px.block_sums[l + 1] : value;
-    const int ratio = from_finer ? f / levels_[l + 1].factor : f;
-    cv::Mat sums = cv::Mat::zeros((image.rows + f - 1) / f, (image.cols + f - 1) / f, CV_64F);
-    for (int r = 0; r < in.rows; ++r) {
-      const double* from = in.ptr<double>(r);
-      double* to = sums.ptr<double>(r / ratio);
-      for (int c = 0, block = 0; c < in.cols; ++block)  // to[c / ratio] += from[c], without the divisions
-        for (const int end = std::min(c + ratio, in.cols); c < end; ++c) to[block] += from[c];
-    }
-    px.block_sums[l] = sums;
-  }
-  for (int r = 0; r < image.rows; ++r) {
-    const double* v = value.ptr<double>(r);
-    const std::uint8_t* n = near.ptr<std::uint8_t>(r);
-    for (int c = 0; c < image.cols; ++c) {
-      if (!n[c]) continue;  // near holds every lit pixel
-      if (c == 0 || !n[c - 1]) px.runs.push_back({c, r, 0, px.values.size()});
-      ++px.runs.back().count;
-      px.values.push_back(v[c]);
-      if (v[c] > 0.0) {
-        px.lit.push_back({c, r, v[c]});
-        px.total += v[c];
-      } else {
-        px.dark.push_back({c, r, v[c]});
+    cv::Mat& sums = px.block_sums[l];
+    sums.create((image.rows + f - 1) / f, (image.cols + f - 1) / f, CV_64F);
+    sums.setTo(0.0);
+    if (l + 1 == levels_.size()) {
+      if (image.type() == CV_8U)
+        addBlockSums<std::uint8_t>(image, f, sums);
+      else
+        addBlockSums<std::uint16_t>(image, f, sums);
+    } else {
+      const cv::Mat& in = px.block_sums[l + 1];
+      const int ratio = f / levels_[l + 1].factor;
+      for (int r = 0; r < in.rows; ++r) {
+        const double* from = in.ptr<double>(r);
+        double* to = sums.ptr<double>(r / ratio);
+        for (int c = 0, block = 0; c < in.cols; ++block)  // to[c / ratio] += from[c], without the divisions
+          for (const int end = std::min(c + ratio, in.cols); c < end; ++c) to[block] += from[c];
       }
     }
   }
-  return px;
+  const bool eight_bit = image.type() == CV_8U;
+  for (int r = 0; r < image.rows; ++r) {
+    const std::uint8_t* n = near.ptr<std::uint8_t>(r);
+    for (int c = 0; c < image.cols; ++c) {
+      if (!n[c]) continue;  // near holds every lit pixel
+      const double v = eight_bit ? image.ptr<std::uint8_t>(r)[c] : image.ptr<std::uint16_t>(r)[c];
+      if (c == 0 || !n[c - 1]) px.runs.push_back({c, r, 0, px.values.size()});
+      ++px.runs.back().count;
+      px.values.push_back(v);
+      if (v > 0.0) {
+        px.lit.push_back({c, r, v});
+        px.total += v;
+      } else {
+        px.dark.push_back({c, r, v});
+      }
+    }
+  }
 }
 
 namespace {
@@ -193,7 +221,9 @@ struct Peak {
 
 std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
                                                     const std::optional<AngleWindow>& window) const {
-  const Pixels px = pixelsOf(image);
+  thread_local Pixels buffers;  // kept from image to image: fresh ones cost page faults
+  const Pixels& px = buffers;
+  pixelsOf(image, buffers);
   if (px.lit.empty()) return std::nullopt;
   const double window_px = static_cast<double>(image.cols) * image.rows;
   const double mean = px.total / window_px;
@@ -216,22 +246,39 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
     window_cell[level] = {static_cast<int>(std::lround(-half_w / l.step_um + l.centre_u + 0.5)),
                           static_cast<int>(std::lround(-half_h / l.step_um + l.centre_v + 0.5))};
   }
-  auto score = [&](std::size_t level, int shift_u, int shift_v) {
+  // Scores of the shifts (u_lo + i, v_lo + j), i < nu, j < nv, into
+  // out[j * nu + i]: row by row of the image's blocks, so that each row and
+  // the template's rows it meets are read once for all the shifts, not once
+  // per shift (each score sums the same per-row dot products in the same
+  // order as one shift alone would).
+  std::vector<double> scores;
+  auto scoreWindow = [&](std::size_t level, int u_lo, int v_lo, int nu, int nv) {
     const Level& l = levels_[level];
     const cv::Mat& sums = px.block_sums[level];
     const int u0 = first_cell[level][0], v0 = first_cell[level][1];
-    // Template cell u - shift_u must lie in [0, cols).
-    const int u_from = std::max(u0, shift_u), u_to = std::min(u0 + sums.cols, shift_u + l.cols);
-    double s = 0.0;
-    if (u_to > u_from)
-      for (int r = 0; r < sums.rows; ++r) {
-        const int tv = v0 + r - shift_v;
+    scores.assign(static_cast<std::size_t>(nu * nv), 0.0);
+    for (int r = 0; r < sums.rows; ++r)
+      for (int j = 0; j < nv; ++j) {
+        const int tv = v0 + r - (v_lo + j);
         if (tv < 0 || tv >= l.rows) continue;
-        s += Eigen::Map<const Eigen::VectorXd>(sums.ptr<double>(r) + (u_from - u0), u_to - u_from)
-                 .dot(Eigen::Map<const Eigen::VectorXd>(l.values.ptr<double>(tv) + (u_from - shift_u), u_to - u_from));
+        const double* image_row = sums.ptr<double>(r);
+        const double* template_row = l.values.ptr<double>(tv);
+        for (int i = 0; i < nu; ++i) {
+          // Template cell u - shift_u must lie in [0, cols).
+          const int shift_u = u_lo + i;
+          const int u_from = std::max(u0, shift_u), u_to = std::min(u0 + sums.cols, shift_u + l.cols);
+          if (u_to <= u_from) continue;
+          scores[static_cast<std::size_t>(j * nu + i)] +=
+              Eigen::Map<const Eigen::VectorXd>(image_row + (u_from - u0), u_to - u_from)
+                  .dot(Eigen::Map<const Eigen::VectorXd>(template_row + (u_from - shift_u), u_to - u_from));
+        }
       }
-    const int w0 = window_cell[level][0] - shift_u, h0 = window_cell[level][1] - shift_v;
-    return s - mean * l.factor * l.factor * l.sum(w0, h0, w0 + image.cols / l.factor, h0 + image.rows / l.factor);
+    for (int j = 0; j < nv; ++j)
+      for (int i = 0; i < nu; ++i) {
+        const int w0 = window_cell[level][0] - (u_lo + i), h0 = window_cell[level][1] - (v_lo + j);
+        scores[static_cast<std::size_t>(j * nu + i)] -=
+            mean * l.factor * l.factor * l.sum(w0, h0, w0 + image.cols / l.factor, h0 + image.rows / l.factor);
+      }
   };
   // Global search over the field's shifts on the coarse grid.
   const Level& coarse = levels_[0];
@@ -240,9 +287,8 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   const int rx = static_cast<int>(std::ceil(reach.x() / coarse.step_um));
   const int ry = static_cast<int>(std::ceil(reach.y() / coarse.step_um));
   const int gw = 2 * rx + 1, gh = 2 * ry + 1;
-  std::vector<double> map(static_cast<std::size_t>(gw * gh));
-  for (int j = 0; j < gh; ++j)
-    for (int i = 0; i < gw; ++i) map[static_cast<std::size_t>(j * gw + i)] = score(0, i - rx, j - ry);
+  scoreWindow(0, -rx, -ry, gw, gh);
+  const std::vector<double> map = scores;
   std::vector<Peak> peaks;
   for (int j = 0; j < gh; ++j)
     for (int i = 0; i < gw; ++i) {
@@ -279,10 +325,11 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
       const int ratio = levels_[level - 1].factor / levels_[level].factor;
       const int span = level == 1 ? ratio + 1 : std::max(1, ratio / 2);
       const int centre_u = best_u * ratio, centre_v = best_v * ratio;
+      scoreWindow(level, centre_u - span, centre_v - span, 2 * span + 1, 2 * span + 1);
       double top = -std::numeric_limits<double>::infinity();
       for (int j = -span; j <= span; ++j)
         for (int i = -span; i <= span; ++i) {
-          const double value = score(level, centre_u + i, centre_v + j);
+          const double value = scores[static_cast<std::size_t>((j + span) * (2 * span + 1) + i + span)];
           if (value > top) {
             top = value;
             best_u = centre_u + i;
@@ -333,7 +380,9 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
 }
 
 std::optional<PatternSolution> PatternSolver::refine(const cv::Mat& image, const Eigen::Vector2d& start_rad) const {
-  const Pixels px = pixelsOf(image);
+  thread_local Pixels buffers;  // kept from image to image: fresh ones cost page faults
+  const Pixels& px = buffers;
+  pixelsOf(image, buffers);
   if (px.lit.empty()) return std::nullopt;
   const auto start = fit(px, start_rad, options_.candidate_stride, options_.candidate_iterations);
   return start ? fit(px, start->angles_rad, 1, options_.iterations) : std::nullopt;

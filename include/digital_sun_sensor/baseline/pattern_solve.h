@@ -91,7 +91,8 @@ class PatternSolver {
  private:
   struct Pixels;
   struct Level;
-  Pixels pixelsOf(const cv::Mat& image) const;
+  // The image's pixels into px (its buffers reused).
+  void pixelsOf(const cv::Mat& image, Pixels& px) const;
   // Gauss-Newton on every `stride`-th pixel.
   std::optional<PatternSolution> fit(const Pixels& pixels, Eigen::Vector2d angles, int stride, int iterations) const;
   Eigen::Vector2d anglesOfShift(const Eigen::Vector2d& shift_um) const;
