@@ -2,6 +2,7 @@
 
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
@@ -82,26 +83,37 @@ std::optional<cv::Mat> PatternEstimator::designPixels(const cv::Mat& image,
   return mask;
 }
 
+namespace {
+
+// An image's codes as CV_16U: the image itself where it is one (the
+// decisions below read codes, which doubles would only copy).
+cv::Mat codesOf(const cv::Mat& image) {
+  if (image.depth() == CV_16U) return image;
+  cv::Mat out;
+  image.convertTo(out, CV_16U);
+  return out;
+}
+
+}  // namespace
+
 cv::Mat PatternEstimator::designImage(const Eigen::Vector2d& angles_rad, const std::optional<cv::Mat>& only) const {
   RenderOptions options;
   options.noise = false;
   options.anomalies = false;
   options.only = only ? &*only : nullptr;
-  cv::Mat out;
-  design_.render(sunVectorFromAngles(angles_rad.x(), angles_rad.y()), 1, nullptr, options).convertTo(out, CV_64F);
-  return out;
+  return codesOf(design_.render(sunVectorFromAngles(angles_rad.x(), angles_rad.y()), 1, nullptr, options));
 }
 
 double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Mat& expected) const {
   double chi2 = 0.0;
   int n = 0;
   for (int r = 0; r < observed.rows; ++r) {
-    const double* i = observed.ptr<double>(r);
-    const double* e = expected.ptr<double>(r);
+    const std::uint16_t* i = observed.ptr<std::uint16_t>(r);
+    const std::uint16_t* e = expected.ptr<std::uint16_t>(r);
     for (int c = 0; c < observed.cols; ++c) {
-      const auto code = static_cast<std::size_t>(e[c]);  // the design's values are codes
-      if (linear_code_[code]) {
-        chi2 += (i[c] - e[c]) * (i[c] - e[c]) / variance_of_half_sum_[2 * code];
+      if (linear_code_[e[c]]) {
+        const double d = static_cast<double>(i[c]) - e[c];
+        chi2 += d * d / variance_of_half_sum_[2 * e[c]];
         ++n;
       }
     }
@@ -110,29 +122,26 @@ double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Ma
 }
 
 double PatternEstimator::unexplainedLightZ(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const {
-  cv::Mat observed;
-  image.convertTo(observed, CV_64F);
-  return unexplainedLightZ(observed, designImage(angles_rad, designPixels(image, {angles_rad})));
+  return unexplainedLightZ(codesOf(image), designImage(angles_rad, designPixels(image, {angles_rad})));
 }
 
 AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen::Vector2d& here_rad,
                                               const Eigen::Vector2d& there_rad) const {
   const std::optional<cv::Mat> pixels = designPixels(image, {here_rad, there_rad});
   const cv::Mat here = designImage(here_rad, pixels), there = designImage(there_rad, pixels);
-  cv::Mat observed;
-  image.convertTo(observed, CV_64F);
+  const cv::Mat observed = codesOf(image);
   // The log-likelihood ratio of the two places under Gaussian pixel noise
   // (sum of (I - T)^2 / v - (I - H)^2 / v) and its variance under either,
   // 4 sum (H - T)^2 / v.
   double log_ratio = 0.0, log_ratio_variance = 0.0;
   for (int r = 0; r < observed.rows; ++r) {
-    const double* i = observed.ptr<double>(r);
-    const double* h = here.ptr<double>(r);
-    const double* t = there.ptr<double>(r);
+    const std::uint16_t* i = observed.ptr<std::uint16_t>(r);
+    const std::uint16_t* h = here.ptr<std::uint16_t>(r);
+    const std::uint16_t* t = there.ptr<std::uint16_t>(r);
     for (int c = 0; c < observed.cols; ++c) {
-      const double delta = h[c] - t[c];
-      if (delta == 0.0) continue;
-      const double rh = i[c] - h[c], rt = i[c] - t[c];
+      if (h[c] == t[c]) continue;
+      const double delta = static_cast<double>(h[c]) - t[c];
+      const double rh = static_cast<double>(i[c]) - h[c], rt = static_cast<double>(i[c]) - t[c];
       const double v = variance_of_half_sum_[static_cast<std::size_t>(h[c] + t[c])];
       log_ratio += (rt * rt - rh * rh) / v;
       log_ratio_variance += 4.0 * delta * delta / v;

@@ -108,7 +108,7 @@ class PatternEstimator : public SunEstimator {
   const std::array<double, 2>& sigmaScale() const { return sigma_scale_; }
 
  private:
-  // The design's noise-free image [CV_64F] and an image's excess over one (both CV_64F).
+  // The design's noise-free image and an image's excess over one (both codes, CV_16U).
   cv::Mat designImage(const Eigen::Vector2d& angles_rad, const std::optional<cv::Mat>& only) const;
   // The pixels to render the design on for a decision between these places (nullopt: all).
   std::optional<cv::Mat> designPixels(const cv::Mat& image, const std::vector<Eigen::Vector2d>& places_rad) const;
