@@ -191,20 +191,37 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
       }
     }
   }
+  // Sized first and filled through pointers: a push_back per pixel cost
+  // more than the rest of this function.
+  const auto lit_count = static_cast<std::size_t>(cv::countNonZero(lit));
+  const auto near_count = static_cast<std::size_t>(cv::countNonZero(near));  // holds every lit pixel
+  px.values.resize(near_count);
+  px.lit.resize(lit_count);
+  px.dark.resize(near_count - lit_count);
+  double* value = px.values.data();
+  Pixels::Pixel* lit_pixel = px.lit.data();
+  Pixels::Pixel* dark_pixel = px.dark.data();
   const bool eight_bit = image.type() == CV_8U;
+  std::size_t k = 0;
   for (int r = 0; r < image.rows; ++r) {
     const std::uint8_t* n = near.ptr<std::uint8_t>(r);
-    for (int c = 0; c < image.cols; ++c) {
-      if (!n[c]) continue;  // near holds every lit pixel
-      const double v = eight_bit ? image.ptr<std::uint8_t>(r)[c] : image.ptr<std::uint16_t>(r)[c];
-      if (c == 0 || !n[c - 1]) px.runs.push_back({c, r, 0, px.values.size()});
-      ++px.runs.back().count;
-      px.values.push_back(v);
-      if (v > 0.0) {
-        px.lit.push_back({c, r, v});
-        px.total += v;
-      } else {
-        px.dark.push_back({c, r, v});
+    for (int c = 0; c < image.cols;) {
+      if (!n[c]) {
+        ++c;
+        continue;
+      }
+      const int begin = c;
+      while (c < image.cols && n[c]) ++c;
+      px.runs.push_back({begin, r, c - begin, k});
+      for (int i = begin; i < c; ++i) {
+        const double v = eight_bit ? image.ptr<std::uint8_t>(r)[i] : image.ptr<std::uint16_t>(r)[i];
+        value[k++] = v;
+        if (v > 0.0) {
+          *lit_pixel++ = {i, r, v};
+          px.total += v;
+        } else {
+          *dark_pixel++ = {i, r, v};
+        }
       }
     }
   }
@@ -312,32 +329,49 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   // Each candidate: the best shift of each finer level around the coarser
   // level's best, down to the middle level; its residual there on a sparse
   // subsample, and the fit where that lies near the best candidate's.
-  std::vector<Eigen::Vector2d> starts;
-  std::vector<double> start_rms;
-  for (const auto& peak : peaks) {
-    int best_u = peak.u, best_v = peak.v;
-    for (std::size_t level = 1; level < levels_.size(); ++level) {
-      // The coarse peak can lie more than a cell off (coarse blocks blur
-      // the pattern); a finer level's start lies within a cell. (Of 1200
-      // thesis_ca candidates, the best of the 8 px level lay 2 cells off the
-      // 16 px level's in 4, the finer levels' never more than 1 cell off
-      // the coarser's, from a search of 2 cells.)
-      const int ratio = levels_[level - 1].factor / levels_[level].factor;
-      const int span = level == 1 ? ratio + 1 : std::max(1, ratio / 2);
-      const int centre_u = best_u * ratio, centre_v = best_v * ratio;
+  struct Track {
+    int u, v;    // best shift so far, in the current level's cells
+    double top;  // its score
+  };
+  std::vector<Track> tracks;
+  for (const auto& peak : peaks) tracks.push_back({peak.u, peak.v, peak.score});
+  for (std::size_t level = 1; level < levels_.size(); ++level) {
+    // The coarse peak can lie more than a cell off (coarse blocks blur
+    // the pattern); a finer level's start lies within a cell. (Of 1200
+    // thesis_ca candidates, the best of the 8 px level lay 2 cells off the
+    // 16 px level's in 4, the finer levels' never more than 1 cell off
+    // the coarser's, from a search of 2 cells.)
+    const int ratio = levels_[level - 1].factor / levels_[level].factor;
+    const int span = level == 1 ? ratio + 1 : std::max(1, ratio / 2);
+    for (Track& t : tracks) {
+      const int centre_u = t.u * ratio, centre_v = t.v * ratio;
       scoreWindow(level, centre_u - span, centre_v - span, 2 * span + 1, 2 * span + 1);
-      double top = -std::numeric_limits<double>::infinity();
+      t.top = -std::numeric_limits<double>::infinity();
       for (int j = -span; j <= span; ++j)
         for (int i = -span; i <= span; ++i) {
           const double value = scores[static_cast<std::size_t>((j + span) * (2 * span + 1) + i + span)];
-          if (value > top) {
-            top = value;
-            best_u = centre_u + i;
-            best_v = centre_v + j;
+          if (value > t.top) {
+            t.top = value;
+            t.u = centre_u + i;
+            t.v = centre_v + j;
           }
         }
     }
-    const Eigen::Vector2d shift = Eigen::Vector2d(best_u, best_v) * levels_.back().step_um;
+    if (level + 2 == levels_.size() && !tracks.empty()) {
+      // Before the finest level (its search costs most): candidates that
+      // score well below the best one here are dropped.
+      double best = -std::numeric_limits<double>::infinity();
+      for (const Track& t : tracks) best = std::max(best, t.top);
+      if (best > 0.0)
+        tracks.erase(std::remove_if(tracks.begin(), tracks.end(),
+                                    [&](const Track& t) { return t.top < kKeepScoreShare * best; }),
+                     tracks.end());
+    }
+  }
+  std::vector<Eigen::Vector2d> starts;
+  std::vector<double> start_rms;
+  for (const Track& t : tracks) {
+    const Eigen::Vector2d shift = Eigen::Vector2d(t.u, t.v) * levels_.back().step_um;
     const Eigen::Vector2d start = anglesOfShift(shift);
     const auto at_start = fit(px, start, kScreenStrideFactor * options_.candidate_stride, 0);
     starts.push_back(start);
@@ -480,11 +514,14 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     if (!step.allFinite()) return std::nullopt;
     angles += step.head<2>();
     gain += step[2];
-    // Each step is 20-40 times smaller than the one before: after one below
-    // 1e-8 rad the solution lies within 1e-9 rad (3e-4 of thesis_ca's
-    // sigma), and this pass's normal matrix and residual stand for the
-    // solution's (another pass would change them by the step's square).
-    if (step.head<2>().norm() < 1e-8) {
+    // Each step is 15-40 times smaller than the one before: after one below
+    // 1 % of the solution's sigma (or 1e-8 rad) the solution lies within
+    // about 0.1 % of it, and this pass's normal matrix and residual stand
+    // for the solution's (another pass would change them by the step's
+    // square).
+    const Eigen::Matrix3d pass_inverse = normal.inverse();
+    const double sigma_min = std::sqrt(sse / std::max(used - 3, 1) * std::min(pass_inverse(0, 0), pass_inverse(1, 1)));
+    if (step.head<2>().norm() < std::max(1e-8, kConvergedSigmaShare * sigma_min)) {
       out.iterations = it + 1;
       break;
     }

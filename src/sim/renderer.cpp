@@ -380,7 +380,8 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
     exposure_s = c.exposure.peak_fraction_of_full_well * c.noise.full_well_e / peak_rate;
   }
   t.exposure_s = exposure_s;
-  cv::Mat electrons = rate * exposure_s;
+  cv::Mat electrons = rate;
+  electrons *= exposure_s;  // in place: a second 1 MB image per render cost its allocation
 
   if (stray) {
     // Smooth gradient (Earth albedo, scattered light): amplitude and direction random.
