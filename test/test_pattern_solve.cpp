@@ -131,6 +131,42 @@ TEST_F(PatternSolveTest, ShiftedTemplateReadAlongARunEqualsPixelByPixel) {
   }
 }
 
+// Where the shifted template reaches a share of its brightest value on the
+// detector: the same pixels as a brute-force reading of the whole window,
+// for windows whose brightest pixel lies at each of their edges (the peak
+// is taken from block maxima and the edge strips beside them), windows cut
+// by the template's edge, and a plain shift.
+TEST_F(PatternSolveTest, ReachingTakesTheWindowsBrightestPixel) {
+  const PatternTemplate& pattern = solver_->patternTemplate();
+  const cv::Mat& values = pattern.values();
+  const int w = config_->detector.width_px, h = config_->detector.height_px, side = pattern.sidePx();
+  const double centre = 0.5 * (side - 1);
+  cv::Point brightest;
+  cv::minMaxLoc(values, nullptr, nullptr, nullptr, &brightest);
+  // The shift [um] that puts the window's first pixel on template pixel (u0, v0).
+  auto shiftTo = [&](int u0, int v0) {
+    return Eigen::Vector2d((centre - 0.5 * (w - 1) - u0) * pattern.pitchUm(),
+                           (centre - 0.5 * (h - 1) - v0) * pattern.pitchUm());
+  };
+  std::vector<std::pair<int, int>> origins{{(side - w) / 2, (side - h) / 2}, {-100, 40}, {side - w + 77, side - 30}};
+  for (int d : {0, 5, 11, 15}) {
+    origins.emplace_back(brightest.x - d, brightest.y - d);                      // the peak near the top left
+    origins.emplace_back(brightest.x - (w - 1) + d, brightest.y - (h - 1) + d);  // near the bottom right
+  }
+  for (const auto& [u0, v0] : origins) {
+    const Eigen::Vector2d shift = shiftTo(u0, v0);
+    const cv::Rect inside = cv::Rect(u0, v0, w, h) & cv::Rect(0, 0, side, side);
+    ASSERT_GT(inside.area(), 0);
+    double peak = 0.0;
+    cv::minMaxLoc(values(inside), nullptr, &peak);
+    cv::Mat expected = cv::Mat::zeros(h, w, CV_8U);
+    cv::Mat(values(inside) >= 0.5 * peak).copyTo(expected(inside - cv::Point(u0, v0)));
+    const cv::Mat got = pattern.reaching(w, h, shift.x(), shift.y(), 0.5);
+    EXPECT_EQ(cv::countNonZero(got != expected), 0) << "window from template pixel " << u0 << ", " << v0;
+    EXPECT_GT(cv::countNonZero(got), 0);
+  }
+}
+
 // The image at normal incidence is the template, quantised to 8 bits and
 // cut by the threshold: read to 0.00005 deg (0.004 um at the mask height).
 TEST_F(PatternSolveTest, NormalIncidenceIsTheTemplateItself) {

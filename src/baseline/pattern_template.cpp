@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -36,6 +37,40 @@ PatternTemplate::PatternTemplate(const SensorConfig& config) {
   cv::minMaxLoc(values_, nullptr, &peak);
   if (!(peak > 0.0)) throw std::invalid_argument("pattern template: the design puts no light on the detector");
   values_ /= peak;
+  const int blocks = side_px_ / kMaxBlockPx;  // whole blocks only: the rest is an edge
+  block_max_.create(blocks, blocks, CV_64F);
+  for (int j = 0; j < blocks; ++j)
+    for (int i = 0; i < blocks; ++i) {
+      double block_peak = 0.0;
+      cv::minMaxLoc(values_(cv::Rect(i * kMaxBlockPx, j * kMaxBlockPx, kMaxBlockPx, kMaxBlockPx)), nullptr,
+                    &block_peak);
+      block_max_.at<double>(j, i) = block_peak;
+    }
+}
+
+double PatternTemplate::peakIn(const cv::Rect& window) const {
+  double peak = -std::numeric_limits<double>::infinity();
+  auto take = [&peak](const cv::Mat& image, const cv::Rect& part) {
+    if (part.width <= 0 || part.height <= 0) return;
+    double part_peak = 0.0;
+    cv::minMaxLoc(image(part), nullptr, &part_peak);
+    peak = std::max(peak, part_peak);
+  };
+  // Whole blocks [i0, i1) x [j0, j1), pixels [x0, x1) x [y0, y1).
+  const int i0 = (window.x + kMaxBlockPx - 1) / kMaxBlockPx, i1 = (window.x + window.width) / kMaxBlockPx;
+  const int j0 = (window.y + kMaxBlockPx - 1) / kMaxBlockPx, j1 = (window.y + window.height) / kMaxBlockPx;
+  if (i1 <= i0 || j1 <= j0) {
+    take(values_, window);
+    return peak;
+  }
+  take(block_max_, cv::Rect(i0, j0, i1 - i0, j1 - j0));
+  const int x0 = i0 * kMaxBlockPx, x1 = i1 * kMaxBlockPx, y0 = j0 * kMaxBlockPx, y1 = j1 * kMaxBlockPx;
+  const int right = window.x + window.width, bottom = window.y + window.height;
+  take(values_, cv::Rect(window.x, window.y, window.width, y0 - window.y));  // above the blocks
+  take(values_, cv::Rect(window.x, y1, window.width, bottom - y1));          // below
+  take(values_, cv::Rect(window.x, y0, x0 - window.x, y1 - y0));             // left of them
+  take(values_, cv::Rect(x1, y0, right - x1, y1 - y0));                      // right
+  return peak;
 }
 
 PatternTemplate::Shifted PatternTemplate::shifted(int detector_width_px, int detector_height_px, double shift_x_um,
@@ -104,8 +139,7 @@ cv::Mat PatternTemplate::reaching(int detector_width_px, int detector_height_px,
   const cv::Rect inside = cv::Rect(u0, v0, detector_width_px, detector_height_px) & cv::Rect(0, 0, side_px_, side_px_);
   if (inside.area() == 0) return out;
   // The part of the detector off the template reads 0: the peak is the covered part's (at least 0).
-  double peak = 0.0;
-  cv::minMaxLoc(values_(inside), nullptr, &peak);
+  const double peak = peakIn(inside);
   if (!(peak > 0.0)) return out;
   cv::Mat(values_(inside) >= fraction * peak).copyTo(out(inside - cv::Point(u0, v0)));
   if (fraction <= 0.0) out.setTo(255);  // the uncovered part's zeros reach it too

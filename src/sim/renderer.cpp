@@ -270,6 +270,7 @@ Renderer::Renderer(SensorInstance instance) : instance_(std::move(instance)) {
   const double photon_energy_j = kPlanck * kLightSpeed / (mean_wavelength_um * 1e-6);
   const double photons_per_m2_s = c.radiometry.irradiance_w_m2 * c.radiometry.nd_transmission / photon_energy_j;
   electron_rate_ = photons_per_m2_s * 1e-12 * c.radiometry.quantum_efficiency;
+  for (const auto& aperture : instance_.apertures) shape_keys_.push_back(ApertureGeometry::from(aperture).key());
 }
 
 Renderer::~Renderer() = default;
@@ -321,13 +322,9 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
   const double half_w_um = 0.5 * w * pitch, half_h_um = 0.5 * h * pitch;
   // One sun direction in this image: one blend per aperture shape, composed
   // once where several apertures share it (a regular mask: all of them).
-  std::vector<std::string> keys;
   std::map<std::string, ShapeSpot> shapes;
   std::vector<SpotToAdd> spots;
-  for (const auto& aperture : instance_.apertures) {
-    keys.push_back(ApertureGeometry::from(aperture).key());
-    ++shapes[keys.back()].apertures;
-  }
+  for (const auto& key : shape_keys_) ++shapes[key].apertures;
   for (std::size_t i = 0; i < instance_.apertures.size(); ++i) {
     const Eigen::Vector3d ap = instance_.apertureCentreUm(i);
     const auto hit = traceToDetector(ap, sun, glass);
@@ -347,7 +344,7 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
       t.spots.push_back(spot);
       continue;
     }
-    ShapeSpot& shape = shapes.at(keys[i]);
+    ShapeSpot& shape = shapes.at(shape_keys_[i]);
     if (shape.drawn.count == 0) {  // the shape's first aperture on the detector
       const SpotCache::Blend blend = cache_->lookup(geometry, sun_mask);
       for (int k = 0; k < blend.count; ++k) shape.power_um2 += blend.weights[k] * blend.maps[k]->total_power_um2;
@@ -374,7 +371,16 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
   t.subfov_class = subFovClass(c, t);
 
   double peak_rate = 0.0;
-  cv::minMaxLoc(rate, nullptr, &peak_rate);
+  if (lit_runs) {
+    // Nothing outside the runs was lit: the peak is theirs (a fraction of the image to read).
+    for (int r = 0; r < h; ++r) {
+      const float* row = rate.ptr<float>(r);
+      for (const auto& [begin, end] : (*lit_runs)[static_cast<std::size_t>(r)])
+        for (int c = begin; c < end; ++c) peak_rate = std::max(peak_rate, static_cast<double>(row[c]));
+    }
+  } else {
+    cv::minMaxLoc(rate, nullptr, &peak_rate);
+  }
   double exposure_s = c.exposure.exposure_s;
   if (c.exposure.mode == ExposureMode::kAuto && peak_rate > 0.0) {
     exposure_s = c.exposure.peak_fraction_of_full_well * c.noise.full_well_e / peak_rate;

@@ -60,7 +60,13 @@ class PatternTemplate {
   const cv::Mat& values() const { return values_; }  // CV_64F, side x side
 
  private:
+  // The brightest value on a window of the template: the maxima of the
+  // kMaxBlockPx blocks it covers whole, and the pixels of its edges.
+  double peakIn(const cv::Rect& window) const;
+  static constexpr int kMaxBlockPx = 16;
+
   cv::Mat values_;
+  cv::Mat block_max_;  // CV_64F: the maximum of each kMaxBlockPx x kMaxBlockPx block of values_
   int side_px_ = 0;
   double pitch_um_ = 1.0;
   double centre_px_ = 0.0;

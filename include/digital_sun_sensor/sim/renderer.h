@@ -10,6 +10,7 @@
 #include <functional>
 #include <memory>
 #include <opencv2/core.hpp>
+#include <string>
 #include <vector>
 
 #include "digital_sun_sensor/common/random.h"
@@ -83,6 +84,7 @@ class Renderer {
   std::shared_ptr<SpotCache> cache_;  // SpotCache::shared: one per optical path in the process
   std::unique_ptr<ReadoutTable> readout_;
   double electron_rate_ = 0.0;
+  std::vector<std::string> shape_keys_;  // per aperture: its shape's key (formatted once, not per image)
 };
 
 // Sub-FOV class of a truth (quadrant, or the aperture whose spot is nearest the
