@@ -143,17 +143,23 @@ namespace {
 
 // Sums of the image's values over blocks of `factor` x `factor` pixels
 // (the blocks at the right and bottom edges cut short). The values are
-// codes: their sums are whole numbers, exact in any order.
+// codes: their sums are whole numbers, exact in any order. A row of blocks
+// is summed in integers and written once.
 template <typename Code>
-void addBlockSums(const cv::Mat& image, int factor, cv::Mat& sums) {
-  for (int r = 0; r < image.rows; ++r) {
-    const Code* from = image.ptr<Code>(r);
-    double* to = sums.ptr<double>(r / factor);
-    for (int c = 0, block = 0; c < image.cols; ++block) {
-      std::uint32_t s = 0;
-      for (const int end = std::min(c + factor, image.cols); c < end; ++c) s += from[c];
-      to[block] += s;
+void blockSums(const cv::Mat& image, int factor, cv::Mat& sums) {
+  std::vector<std::uint32_t> row_sums(static_cast<std::size_t>(sums.cols));
+  for (int block_row = 0; block_row < sums.rows; ++block_row) {
+    std::fill(row_sums.begin(), row_sums.end(), 0u);
+    for (int r = block_row * factor, r_end = std::min(image.rows, r + factor); r < r_end; ++r) {
+      const Code* from = image.ptr<Code>(r);
+      for (int c = 0, block = 0; c < image.cols; ++block) {
+        std::uint32_t s = 0;
+        for (const int end = std::min(c + factor, image.cols); c < end; ++c) s += from[c];
+        row_sums[static_cast<std::size_t>(block)] += s;
+      }
     }
+    double* to = sums.ptr<double>(block_row);
+    for (int block = 0; block < sums.cols; ++block) to[block] = row_sums[static_cast<std::size_t>(block)];
   }
 }
 
@@ -167,20 +173,19 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
   const int band = 2 * options_.dark_band_px + 1;
   cv::dilate(lit, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(band, band)));
   px.lit.clear(), px.dark.clear(), px.runs.clear(), px.values.clear();
-  px.total = 0.0;
   // Finest level first: each coarser one sums the finer one's blocks.
   px.block_sums.resize(levels_.size());
   for (std::size_t l = levels_.size(); l-- > 0;) {
     const int f = levels_[l].factor;
     cv::Mat& sums = px.block_sums[l];
     sums.create((image.rows + f - 1) / f, (image.cols + f - 1) / f, CV_64F);
-    sums.setTo(0.0);
     if (l + 1 == levels_.size()) {
       if (image.type() == CV_8U)
-        addBlockSums<std::uint8_t>(image, f, sums);
+        blockSums<std::uint8_t>(image, f, sums);
       else
-        addBlockSums<std::uint16_t>(image, f, sums);
+        blockSums<std::uint16_t>(image, f, sums);
     } else {
+      sums.setTo(0.0);
       const cv::Mat& in = px.block_sums[l + 1];
       const int ratio = f / levels_[l + 1].factor;
       for (int r = 0; r < in.rows; ++r) {
@@ -203,6 +208,7 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
   Pixels::Pixel* dark_pixel = px.dark.data();
   const bool eight_bit = image.type() == CV_8U;
   std::size_t k = 0;
+  double total = 0.0;  // summed here, not in px: a sum in memory is a store and a load per pixel
   for (int r = 0; r < image.rows; ++r) {
     const std::uint8_t* n = near.ptr<std::uint8_t>(r);
     for (int c = 0; c < image.cols;) {
@@ -218,13 +224,14 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
         value[k++] = v;
         if (v > 0.0) {
           *lit_pixel++ = {i, r, v};
-          px.total += v;
+          total += v;
         } else {
           *dark_pixel++ = {i, r, v};
         }
       }
     }
   }
+  px.total = total;
 }
 
 namespace {

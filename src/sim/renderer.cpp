@@ -497,6 +497,9 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
     const bool eight_bit = out.depth() == CV_8U;
     for (int r = 0; r < h; ++r) {
       const float* in = signal_e.ptr<float>(r);
+      // Row pointers taken once: an 8-bit store may alias the Mat's own fields.
+      std::uint8_t* const out_8 = eight_bit ? out.ptr<std::uint8_t>(r) : nullptr;
+      std::uint16_t* const out_16 = eight_bit ? nullptr : out.ptr<std::uint16_t>(r);
       for (int col = 0; col < w; ++col) {
         if (!noise && in[col] == 0.0f) continue;
         const int idx = r * w + col;
@@ -507,9 +510,9 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
         const double dn = std::floor(e * gain + n.black_level_dn + 0.5);
         const int value = lut[static_cast<int>(std::clamp(dn, 0.0, static_cast<double>(max_code)))];
         if (eight_bit)
-          out.ptr<std::uint8_t>(r)[col] = static_cast<std::uint8_t>(value);
+          out_8[col] = static_cast<std::uint8_t>(value);
         else
-          out.ptr<std::uint16_t>(r)[col] = static_cast<std::uint16_t>(value);
+          out_16[col] = static_cast<std::uint16_t>(value);
       }
     }
     return out;
