@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
 
+#include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
@@ -209,17 +210,10 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
   const bool eight_bit = image.type() == CV_8U;
   std::size_t k = 0;
   double total = 0.0;  // summed here, not in px: a sum in memory is a store and a load per pixel
-  for (int r = 0; r < image.rows; ++r) {
-    const std::uint8_t* n = near.ptr<std::uint8_t>(r);
-    for (int c = 0; c < image.cols;) {
-      if (!n[c]) {
-        ++c;
-        continue;
-      }
-      const int begin = c;
-      while (c < image.cols && n[c]) ++c;
-      px.runs.push_back({begin, r, c - begin, k});
-      for (int i = begin; i < c; ++i) {
+  for (int r = 0; r < image.rows; ++r)
+    forEachRun(near.ptr<std::uint8_t>(r), image.cols, [&](int begin, int end) {
+      px.runs.push_back({begin, r, end - begin, k});
+      for (int i = begin; i < end; ++i) {
         const double v = eight_bit ? image.ptr<std::uint8_t>(r)[i] : image.ptr<std::uint16_t>(r)[i];
         value[k++] = v;
         if (v > 0.0) {
@@ -229,8 +223,7 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
           *dark_pixel++ = {i, r, v};
         }
       }
-    }
-  }
+    });
   px.total = total;
 }
 
@@ -245,7 +238,7 @@ struct Peak {
 
 std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
                                                     const std::optional<AngleWindow>& window) const {
-  thread_local Pixels buffers;  // kept from image to image: fresh ones cost page faults
+  thread_local Pixels buffers;  // allocated once per thread, refilled per image
   const Pixels& px = buffers;
   pixelsOf(image, buffers);
   if (px.lit.empty()) return std::nullopt;
@@ -271,7 +264,7 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
                           static_cast<int>(std::lround(-half_h / l.step_um + l.centre_v + 0.5))};
   }
   // Scores of the shifts (u_lo + i, v_lo + j), i < nu, j < nv, into
-  // out[j * nu + i]: row by row of the image's blocks, so that each row and
+  // scores[j * nu + i]: row by row of the image's blocks, so that each row and
   // the template's rows it meets are read once for all the shifts, not once
   // per shift (each score sums the same per-row dot products in the same
   // order as one shift alone would).
@@ -421,7 +414,7 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
 }
 
 std::optional<PatternSolution> PatternSolver::refine(const cv::Mat& image, const Eigen::Vector2d& start_rad) const {
-  thread_local Pixels buffers;  // kept from image to image: fresh ones cost page faults
+  thread_local Pixels buffers;  // allocated once per thread, refilled per image
   const Pixels& px = buffers;
   pixelsOf(image, buffers);
   if (px.lit.empty()) return std::nullopt;

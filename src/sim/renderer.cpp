@@ -12,6 +12,7 @@
 #include <tuple>
 #include <vector>
 
+#include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/optics.h"
@@ -29,18 +30,9 @@ using RowRuns = std::vector<std::vector<std::pair<int, int>>>;
 
 RowRuns runsOf(const cv::Mat& mask) {
   RowRuns runs(static_cast<std::size_t>(mask.rows));
-  for (int r = 0; r < mask.rows; ++r) {
-    const std::uint8_t* m = mask.ptr<std::uint8_t>(r);
-    for (int c = 0; c < mask.cols;) {
-      if (!m[c]) {
-        ++c;
-        continue;
-      }
-      const int begin = c;
-      while (c < mask.cols && m[c]) ++c;
-      runs[static_cast<std::size_t>(r)].emplace_back(begin, c);
-    }
-  }
+  for (int r = 0; r < mask.rows; ++r)
+    forEachRun(mask.ptr<std::uint8_t>(r), mask.cols,
+               [&](int begin, int end) { runs[static_cast<std::size_t>(r)].emplace_back(begin, end); });
   return runs;
 }
 
@@ -387,7 +379,7 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
   }
   t.exposure_s = exposure_s;
   cv::Mat electrons = rate;
-  electrons *= exposure_s;  // in place: a second 1 MB image per render cost its allocation
+  electrons *= exposure_s;  // in place: no second image
 
   if (stray) {
     // Smooth gradient (Earth albedo, scattered light): amplitude and direction random.
