@@ -458,6 +458,7 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
   Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();
   double sse = 0.0;
   int used = 0;
+  auto residual_variance = [&] { return sse / std::max(used - 3, 1); };  // per pixel, of the last pass
   for (int it = 0;; ++it) {
     const Eigen::Vector2d d = shiftUm(angles);
     const PatternTemplate::Shifted shifted =
@@ -520,7 +521,7 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     // for the solution's (another pass would change them by the step's
     // square).
     const Eigen::Matrix3d pass_inverse = normal.inverse();
-    const double sigma_min = std::sqrt(sse / std::max(used - 3, 1) * std::min(pass_inverse(0, 0), pass_inverse(1, 1)));
+    const double sigma_min = std::sqrt(residual_variance() * std::min(pass_inverse(0, 0), pass_inverse(1, 1)));
     if (step.head<2>().norm() < std::max(1e-8, kConvergedSigmaShare * sigma_min)) {
       out.iterations = it + 1;
       break;
@@ -529,9 +530,8 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
   if (used < 4 || !angles.allFinite()) return std::nullopt;
   const Eigen::Matrix3d inverse = normal.inverse();
   if (!inverse.allFinite()) return std::nullopt;
-  const double variance = sse / std::max(used - 3, 1);
   out.angles_rad = angles;
-  out.covariance = variance * inverse.topLeftCorner<2, 2>();
+  out.covariance = residual_variance() * inverse.topLeftCorner<2, 2>();
   out.gain = gain;
   out.residual_rms_dn = std::sqrt(sse / used);
   out.pixels = used;
