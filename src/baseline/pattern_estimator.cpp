@@ -11,6 +11,7 @@
 #include "digital_sun_sensor/baseline/calibration_model.h"
 #include "digital_sun_sensor/common/estimate_status.h"
 #include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/renderer.h"
@@ -43,6 +44,10 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
     linear_code_.push_back(noise_.inLinearRange(code, kLinearRangeSigmas));
   for (int sum = 0; sum <= 2 * config.maxCode(); ++sum)
     variance_of_half_sum_.push_back(noise_.varianceOfValue(0.5 * sum));
+  // The code of a design pixel that holds no light: that of a render lighting none.
+  unlit_code_ =
+      designImage(Eigen::Vector2d::Zero(), cv::Mat::zeros(config.detector.height_px, config.detector.width_px, CV_8U))
+          .at<std::uint16_t>(0, 0);
   if (options.sigma_images <= 0) return;
   // The design with its detector's fixed patterns and noise, no unit errors, no anomalies.
   SensorConfig design = config;
@@ -104,25 +109,46 @@ cv::Mat PatternEstimator::designImage(const Eigen::Vector2d& angles_rad, const s
   return codesOf(design_.render(sunVectorFromAngles(angles_rad.x(), angles_rad.y()), 1, nullptr, options));
 }
 
-double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Mat& expected) const {
+namespace {
+
+// Calls visit(row, begin, end) per run of the pixels `marked` holds (every
+// row whole without it), in raster order.
+template <typename Visit>
+void forEachMarkedRun(const std::optional<cv::Mat>& marked, int rows, int cols, Visit&& visit) {
+  for (int r = 0; r < rows; ++r) {
+    if (marked)
+      forEachRun(marked->ptr<std::uint8_t>(r), cols, [&](int begin, int end) { visit(r, begin, end); });
+    else
+      visit(r, 0, cols);
+  }
+}
+
+}  // namespace
+
+double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Mat& expected,
+                                           const std::optional<cv::Mat>& pixels) const {
   double chi2 = 0.0;
   int n = 0;
-  for (int r = 0; r < observed.rows; ++r) {
+  // Off the rendered pixels the design reads its unlit code; where that lies
+  // outside the linear range, they add nothing and are not read.
+  const std::optional<cv::Mat>& read = linear_code_[unlit_code_] ? std::nullopt : pixels;
+  forEachMarkedRun(read, observed.rows, observed.cols, [&](int r, int begin, int end) {
     const std::uint16_t* i = observed.ptr<std::uint16_t>(r);
     const std::uint16_t* e = expected.ptr<std::uint16_t>(r);
-    for (int c = 0; c < observed.cols; ++c) {
+    for (int c = begin; c < end; ++c) {
       if (linear_code_[e[c]]) {
         const double d = static_cast<double>(i[c]) - e[c];
         chi2 += d * d / variance_of_half_sum_[2 * e[c]];
         ++n;
       }
     }
-  }
+  });
   return n > 0 ? (chi2 - n) / std::sqrt(2.0 * n) : 0.0;
 }
 
 double PatternEstimator::unexplainedLightZ(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const {
-  return unexplainedLightZ(codesOf(image), designImage(angles_rad, designPixels(image, {angles_rad})));
+  const std::optional<cv::Mat> pixels = designPixels(image, {angles_rad});
+  return unexplainedLightZ(codesOf(image), designImage(angles_rad, pixels), pixels);
 }
 
 AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen::Vector2d& here_rad,
@@ -132,13 +158,13 @@ AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen:
   const cv::Mat observed = codesOf(image);
   // The log-likelihood ratio of the two places under Gaussian pixel noise
   // (sum of (I - T)^2 / v - (I - H)^2 / v) and its variance under either,
-  // 4 sum (H - T)^2 / v.
+  // 4 sum (H - T)^2 / v; off the rendered pixels both read the unlit code.
   double log_ratio = 0.0, log_ratio_variance = 0.0;
-  for (int r = 0; r < observed.rows; ++r) {
+  forEachMarkedRun(pixels, observed.rows, observed.cols, [&](int r, int begin, int end) {
     const std::uint16_t* i = observed.ptr<std::uint16_t>(r);
     const std::uint16_t* h = here.ptr<std::uint16_t>(r);
     const std::uint16_t* t = there.ptr<std::uint16_t>(r);
-    for (int c = 0; c < observed.cols; ++c) {
+    for (int c = begin; c < end; ++c) {
       if (h[c] == t[c]) continue;
       const double delta = static_cast<double>(h[c]) - t[c];
       const double rh = static_cast<double>(i[c]) - h[c], rt = static_cast<double>(i[c]) - t[c];
@@ -146,10 +172,10 @@ AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen:
       log_ratio += (rt * rt - rh * rh) / v;
       log_ratio_variance += 4.0 * delta * delta / v;
     }
-  }
+  });
   AliasEvidence e;
   if (log_ratio_variance > 0.0) e.z = log_ratio / std::sqrt(log_ratio_variance);
-  e.unexplained_z = unexplainedLightZ(observed, e.z >= 0.0 ? here : there);
+  e.unexplained_z = unexplainedLightZ(observed, e.z >= 0.0 ? here : there, pixels);
   return e;
 }
 

@@ -10,12 +10,15 @@
 namespace dss {
 
 std::vector<Prediction> Model::decode(const SscnnOutput& out, const sparse::SiteSet& sites) const {
+  return decode(out, sites.countsPerImage());
+}
+
+std::vector<Prediction> Model::decode(const SscnnOutput& out, const std::vector<int>& counts) const {
   const auto angles = out.angles.detach().to(torch::kDouble).contiguous();
   const auto log_var = out.log_variance.detach().to(torch::kDouble).contiguous();
   const auto probs = torch::softmax(out.class_logits.detach().to(torch::kDouble), 1).contiguous();
   // Accessors, not per-element indexing: each tensor index or item() would allocate.
   const auto a = angles.accessor<double, 2>(), v = log_var.accessor<double, 2>(), c = probs.accessor<double, 2>();
-  const auto counts = sites.countsPerImage();
   torch::Tensor resolved_class;
   std::optional<torch::TensorAccessor<std::int64_t, 1>> resolved;
   if (out.resolved_class.defined()) {
@@ -99,6 +102,21 @@ constexpr std::size_t kImageInputsPerPass = 16;
 // Training samples as before the symmetry: 64 per pass when it is none.
 constexpr std::size_t kSampleInputsPerPass = 64;
 
+// The coarse directions of items [first, first + count) as the pattern
+// head reads them (SscnnNetImpl::forward's known_angles); undefined without.
+torch::Tensor coarseInput(const Model& model, const CoarseDirections* coarse, std::size_t first, std::size_t count) {
+  if (!coarse) return {};
+  const double s = model.meta.angle_scale_rad, none = std::numeric_limits<double>::quiet_NaN();
+  torch::Tensor known = torch::full({static_cast<std::int64_t>(count), 3}, none, torch::kDouble);
+  for (std::size_t k = 0; k < count; ++k)
+    if (const auto& c = (*coarse)[first + k]) {
+      known[static_cast<std::int64_t>(k)][0] = c->alpha_rad / s;
+      known[static_cast<std::int64_t>(k)][1] = c->beta_rad / s;
+      known[static_cast<std::int64_t>(k)][2] = c->sigma_rad / s;
+    }
+  return known;
+}
+
 // predict over `items` in passes of at most `inputs_per_pass` network inputs.
 // With `coarse` (one per item, no inference symmetry), the pattern head's coarse directions.
 template <typename Item, typename Encode>
@@ -113,17 +131,7 @@ std::vector<Prediction> predictInPasses(const Model& model, const std::vector<It
     const std::vector<Item> pass(items.begin() + static_cast<std::ptrdiff_t>(first),
                                  items.begin() + static_cast<std::ptrdiff_t>(std::min(items.size(), first + per_pass)));
     const auto input = encode(pass);
-    torch::Tensor known;
-    if (coarse) {
-      const double s = model.meta.angle_scale_rad, none = std::numeric_limits<double>::quiet_NaN();
-      known = torch::full({static_cast<std::int64_t>(pass.size()), 3}, none, torch::kDouble);
-      for (std::size_t k = 0; k < pass.size(); ++k)
-        if (const auto& c = (*coarse)[first + k]) {
-          known[static_cast<std::int64_t>(k)][0] = c->alpha_rad / s;
-          known[static_cast<std::int64_t>(k)][1] = c->beta_rad / s;
-          known[static_cast<std::int64_t>(k)][2] = c->sigma_rad / s;
-        }
-    }
+    const torch::Tensor known = coarseInput(model, coarse, first, pass.size());
     const std::vector<Prediction> p = model.decode(model.net->forward(input, {}, known), *input.sites);
     out.insert(out.end(), p.begin(), p.end());
   }
@@ -142,6 +150,16 @@ std::vector<Prediction> Model::predict(const std::vector<cv::Mat>& images, const
     if (coarse->size() != images.size())
       throw std::invalid_argument("predict: " + std::to_string(coarse->size()) + " coarse directions for " +
                                   std::to_string(images.size()) + " images");
+  }
+  if (meta.arch.pattern_head && symmetryTransforms(meta.inference_symmetry).size() == 1) {
+    // The pattern head solves the image its sites make: made directly, the
+    // same images and answers as through the sparse tensor, without it.
+    torch::NoGradGuard no_grad;
+    std::vector<cv::Mat> site_images;
+    std::vector<int> counts(images.size(), 0);
+    for (std::size_t k = 0; k < images.size(); ++k) site_images.push_back(siteImage(images[k], meta.input, counts[k]));
+    return decode(net->patternForward(site_images, coarseInput(*this, coarse, 0, images.size()), torch::kFloat),
+                  counts);
   }
   return predictInPasses(
       *this, images, kImageInputsPerPass,

@@ -44,7 +44,13 @@ SscnnOutput SscnnNetImpl::patternForward(const sparse::SparseTensor& input, cons
     else
       image.at<std::uint8_t>(sites[k].y, sites[k].x) = static_cast<std::uint8_t>(dn);
   }
+  return patternForward(images, coarse, input.features.scalar_type());
+}
 
+SscnnOutput SscnnNetImpl::patternForward(const std::vector<cv::Mat>& images, const torch::Tensor& coarse,
+                                         torch::Dtype dtype) {
+  if (!pattern_) throw std::logic_error("pattern head: the sensor's pattern estimator was not made (initPattern)");
+  const auto batch = static_cast<std::int64_t>(images.size());
   const double scale = arch_.angle_scale_rad;
   torch::Tensor angles = torch::zeros({batch, 2}, torch::kDouble);
   torch::Tensor solve_log_variance = torch::zeros({batch, 2}, torch::kDouble);
@@ -72,15 +78,14 @@ SscnnOutput SscnnNetImpl::patternForward(const sparse::SparseTensor& input, cons
     v[b][0] = std::log(e.covariance[0] / (scale * scale));
     v[b][1] = std::log(e.covariance[3] / (scale * scale));
   }
-  const auto dtype = input.features.scalar_type();
   out.angles = angles.to(dtype);
-  out.class_logits = torch::zeros({batch, arch_.num_classes}, input.features.options());
+  out.class_logits = torch::zeros({batch, arch_.num_classes}, torch::TensorOptions().dtype(dtype));
   out.resolved_class = classes;
   // The variance head as for the geometric head: its weights on the
   // solve's log variance (identity as created), none on features here.
   const std::int64_t features = variance_->weight.size(1) - 2;
-  out.log_variance = variance_->forward(
-      torch::cat({torch::zeros({batch, features}, input.features.options()), solve_log_variance.to(dtype)}, 1));
+  out.log_variance = variance_->forward(torch::cat(
+      {torch::zeros({batch, features}, torch::TensorOptions().dtype(dtype)), solve_log_variance.to(dtype)}, 1));
   return out;
 }
 

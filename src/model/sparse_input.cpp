@@ -117,6 +117,49 @@ sparse::SparseTensor encodeSamples(const std::vector<const SparseSample*>& sampl
   return encoder.finish(torch::kFloat);
 }
 
+namespace {
+
+// Pixels above the threshold copied into `out` (of its depth, zeroed), their count returned.
+template <typename In, typename Out>
+int copyAboveThreshold(const cv::Mat& image, double threshold_dn, cv::Mat& out) {
+  int count = 0;
+  for (int y = 0; y < image.rows; ++y) {
+    const In* from = image.ptr<In>(y);
+    Out* to = out.ptr<Out>(y);
+    for (int x = 0; x < image.cols; ++x)
+      if (from[x] > threshold_dn) {
+        to[x] = static_cast<Out>(from[x]);
+        ++count;
+      }
+  }
+  return count;
+}
+
+}  // namespace
+
+cv::Mat siteImage(const cv::Mat& image, const InputSpec& spec, int& sites) {
+  spec.checkImage(image);
+  const bool wide = spec.max_code > 255;
+  cv::Mat out = cv::Mat::zeros(image.rows, image.cols, wide ? CV_16U : CV_8U);
+  const bool eight_bit = image.depth() == CV_8U;
+  sites = eight_bit ? (wide ? copyAboveThreshold<std::uint8_t, std::uint16_t>(image, spec.threshold_dn, out)
+                            : copyAboveThreshold<std::uint8_t, std::uint8_t>(image, spec.threshold_dn, out))
+                    : (wide ? copyAboveThreshold<std::uint16_t, std::uint16_t>(image, spec.threshold_dn, out)
+                            : copyAboveThreshold<std::uint16_t, std::uint8_t>(image, spec.threshold_dn, out));
+  if (sites <= spec.max_sites) return out;
+  // Beyond max_sites: only the brightest, as encodeImages keeps them.
+  out.setTo(0);
+  const std::vector<Pixel> kept = activePixels(image, spec);
+  for (const Pixel& p : kept) {
+    if (wide)
+      out.at<std::uint16_t>(p.y, p.x) = static_cast<std::uint16_t>(p.dn);
+    else
+      out.at<std::uint8_t>(p.y, p.x) = static_cast<std::uint8_t>(p.dn);
+  }
+  sites = static_cast<int>(kept.size());
+  return out;
+}
+
 torch::Tensor encodeImagesDense(const std::vector<cv::Mat>& images, const InputSpec& spec) {
   const auto s = encodeImages(images, spec);
   return sparse::toDense(s.features, *s.sites);

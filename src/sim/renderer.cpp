@@ -379,7 +379,16 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
   }
   t.exposure_s = exposure_s;
   cv::Mat electrons = rate;
-  electrons *= exposure_s;  // in place: no second image
+  if (lit_runs) {  // in place, and only where light can be; in floats, as OpenCV scales a float image
+    const auto scale = static_cast<float>(exposure_s);
+    for (int r = 0; r < h; ++r) {
+      float* row = electrons.ptr<float>(r);
+      for (const auto& [begin, end] : (*lit_runs)[static_cast<std::size_t>(r)])
+        for (int c = begin; c < end; ++c) row[c] *= scale;
+    }
+  } else {
+    electrons *= exposure_s;
+  }
 
   if (stray) {
     // Smooth gradient (Earth albedo, scattered light): amplitude and direction random.
@@ -487,12 +496,16 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
         std::clamp(std::floor(dark_e * gain + n.black_level_dn + 0.5), 0.0, static_cast<double>(max_code)));
     if (!noise) out.setTo(lut[unlit_code]);
     const bool eight_bit = out.depth() == CV_8U;
+    // Without noise, a pixel `only` leaves out holds no signal: its code is the unlit one.
+    const cv::Mat* only = noise ? nullptr : options.only;
     for (int r = 0; r < h; ++r) {
       const float* in = signal_e.ptr<float>(r);
       // Row pointers taken once: an 8-bit store may alias the Mat's own fields.
       std::uint8_t* const out_8 = eight_bit ? out.ptr<std::uint8_t>(r) : nullptr;
       std::uint16_t* const out_16 = eight_bit ? nullptr : out.ptr<std::uint16_t>(r);
+      const std::uint8_t* marked = only ? only->ptr<std::uint8_t>(r) : nullptr;
       for (int col = 0; col < w; ++col) {
+        if (marked && !marked[col]) continue;
         if (!noise && in[col] == 0.0f) continue;
         const int idx = r * w + col;
         double e = (prnu ? in[col] * instance_.prnu_gain[idx] : in[col]) +

@@ -112,7 +112,9 @@ class PatternEstimator : public SunEstimator {
   cv::Mat designImage(const Eigen::Vector2d& angles_rad, const std::optional<cv::Mat>& only) const;
   // The pixels to render the design on for a decision between these places (nullopt: all).
   std::optional<cv::Mat> designPixels(const cv::Mat& image, const std::vector<Eigen::Vector2d>& places_rad) const;
-  double unexplainedLightZ(const cv::Mat& observed, const cv::Mat& expected) const;
+  // Over the design's rendered `pixels` (all: nullopt).
+  double unexplainedLightZ(const cv::Mat& observed, const cv::Mat& expected,
+                           const std::optional<cv::Mat>& pixels) const;
 
   SensorConfig config_;
   InputSpec input_;
@@ -125,6 +127,7 @@ class PatternEstimator : public SunEstimator {
   double reach_share_ = 0.0;                  // 0: decisions render the whole detector
   std::vector<double> variance_of_half_sum_;  // of a value, per twice the value (the sum of two codes)
   std::vector<char> linear_code_;             // inLinearRange per code
+  std::uint16_t unlit_code_ = 0;              // a design pixel's without light
 };
 
 }  // namespace dss

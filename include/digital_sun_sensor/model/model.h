@@ -64,6 +64,8 @@ struct Model {
   std::vector<Prediction> predictSamples(const std::vector<const SparseSample*>& samples) const;
   // Network outputs to angles (the angle correction subtracted), variances and classes.
   std::vector<Prediction> decode(const SscnnOutput& out, const sparse::SiteSet& sites) const;
+  // The same with each image's count of active sites.
+  std::vector<Prediction> decode(const SscnnOutput& out, const std::vector<int>& counts) const;
   // The metadata's angle correction for the geometry the geometric head
   // holds (a unit's mask height moves it: ModelMetadata::height_corrections).
   UnitAngleCorrection angleCorrection() const;

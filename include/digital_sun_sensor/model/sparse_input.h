@@ -27,6 +27,12 @@ sparse::SparseTensor encodeImages(const std::vector<cv::Mat>& images, const Inpu
 sparse::SparseTensor encodeSamples(const std::vector<const SparseSample*>& samples, const InputSpec& spec,
                                    InferenceSymmetry symmetry = InferenceSymmetry::kNone);
 
+// The image the active sites make (encodeImages, no symmetry): each site's
+// digital number at its pixel, 0 elsewhere, of depth CV_16U where
+// spec.max_code > 255, else CV_8U; `sites` is their count. What the pattern
+// head solves, without the round trip through the sparse tensor.
+cv::Mat siteImage(const cv::Mat& image, const InputSpec& spec, int& sites);
+
 // Dense [batch, 3, H, W] equivalent of encodeImages (zeros at inactive pixels).
 torch::Tensor encodeImagesDense(const std::vector<cv::Mat>& images, const InputSpec& spec);
 

@@ -100,6 +100,10 @@ class SscnnNetImpl : public torch::nn::Module {
   // its template: seconds for a large mask), and how the sites' values map
   // back to the image's digital numbers (no-op for other heads).
   void initPattern(const SensorConfig& config, const InputSpec& input);
+  // Pattern head on the images its sites make (siteImage; no inference
+  // symmetry): forward() without the round trip through the sparse tensor.
+  // `coarse` as forward()'s known_angles.
+  SscnnOutput patternForward(const std::vector<cv::Mat>& images, const torch::Tensor& coarse, torch::Dtype dtype);
   // Pattern head: its design's diffraction cache computed now, on `threads`
   // threads (PatternEstimator::warmUp; no-op for other heads).
   void warmUp(int threads) const;
