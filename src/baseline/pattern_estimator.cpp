@@ -83,9 +83,28 @@ std::optional<cv::Mat> PatternEstimator::designPixels(const cv::Mat& image,
     cv::bitwise_or(mask, solver_.patternTemplate().reaching(image.cols, image.rows, shift.x(), shift.y(), reach_share_),
                    mask);
   }
-  const int side = 2 * kDesignBandPx + 1;
-  cv::dilate(mask, mask, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
   return mask;
+}
+
+std::vector<cv::Mat> PatternEstimator::designImages(const std::vector<Eigen::Vector2d>& places_rad,
+                                                    std::optional<cv::Mat>& pixels) const {
+  std::vector<cv::Mat> images;
+  for (const auto& place : places_rad) images.push_back(designImage(place, pixels));
+  if (!pixels) return images;
+  // The pixels on the edge of the rendered ones (a neighbour left out): light
+  // there may go on beyond them.
+  cv::Mat inner;
+  cv::erode(*pixels, inner, cv::Mat(), cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(255));
+  std::vector<cv::Point> edge;
+  cv::findNonZero(*pixels & ~inner, edge);
+  for (const cv::Mat& image : images)
+    for (const cv::Point& p : edge)
+      if (image.at<std::uint16_t>(p) != unlit_code_) {
+        pixels.reset();
+        for (std::size_t k = 0; k < places_rad.size(); ++k) images[k] = designImage(places_rad[k], std::nullopt);
+        return images;
+      }
+  return images;
 }
 
 namespace {
@@ -147,14 +166,16 @@ double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Ma
 }
 
 double PatternEstimator::unexplainedLightZ(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const {
-  const std::optional<cv::Mat> pixels = designPixels(image, {angles_rad});
-  return unexplainedLightZ(codesOf(image), designImage(angles_rad, pixels), pixels);
+  std::optional<cv::Mat> pixels = designPixels(image, {angles_rad});
+  const cv::Mat expected = designImages({angles_rad}, pixels)[0];
+  return unexplainedLightZ(codesOf(image), expected, pixels);
 }
 
 AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen::Vector2d& here_rad,
                                               const Eigen::Vector2d& there_rad) const {
-  const std::optional<cv::Mat> pixels = designPixels(image, {here_rad, there_rad});
-  const cv::Mat here = designImage(here_rad, pixels), there = designImage(there_rad, pixels);
+  std::optional<cv::Mat> pixels = designPixels(image, {here_rad, there_rad});
+  const std::vector<cv::Mat> designs = designImages({here_rad, there_rad}, pixels);
+  const cv::Mat &here = designs[0], &there = designs[1];
   const cv::Mat observed = codesOf(image);
   // The log-likelihood ratio of the two places under Gaussian pixel noise
   // (sum of (I - T)^2 / v - (I - H)^2 / v) and its variance under either,

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <map>
 #include <memory>
@@ -512,7 +513,11 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
                    (dsnu ? dark_e * instance_.dark_scale[idx] : dark_e);
         e = std::min(e, n.full_well_e);
         if (noise && n.read_noise_e > 0.0) e += n.read_noise_e * rng.normal();
-        const double dn = std::floor(e * gain + n.black_level_dn + 0.5);
+        const double half_up = e * gain + n.black_level_dn + 0.5;
+        // floor() of a non-negative value is its truncation (exact; floor is
+        // a library call without SSE4.1, and this runs per lit pixel).
+        const double dn = half_up >= 0.0 && half_up < 2e9 ? static_cast<double>(static_cast<std::int64_t>(half_up))
+                                                          : std::floor(half_up);
         const int value = lut[static_cast<int>(std::clamp(dn, 0.0, static_cast<double>(max_code)))];
         if (eight_bit)
           out_8[col] = static_cast<std::uint8_t>(value);
