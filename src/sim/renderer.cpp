@@ -497,32 +497,46 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
         std::clamp(std::floor(dark_e * gain + n.black_level_dn + 0.5), 0.0, static_cast<double>(max_code)));
     if (!noise) out.setTo(lut[unlit_code]);
     const bool eight_bit = out.depth() == CV_8U;
-    // Without noise, a pixel `only` leaves out holds no signal: its code is the unlit one.
-    const cv::Mat* only = noise ? nullptr : options.only;
+    // The code of e electrons. floor() of a non-negative value is its
+    // truncation (exact; floor is a library call without SSE4.1, and this
+    // runs per lit pixel).
+    auto codeOf = [&](double e) {
+      const double half_up = e * gain + n.black_level_dn + 0.5;
+      const double dn = half_up >= 0.0 && half_up < 2e9 ? static_cast<double>(static_cast<std::int64_t>(half_up))
+                                                        : std::floor(half_up);
+      return lut[static_cast<int>(std::clamp(dn, 0.0, static_cast<double>(max_code)))];
+    };
     for (int r = 0; r < h; ++r) {
       const float* in = signal_e.ptr<float>(r);
       // Row pointers taken once: an 8-bit store may alias the Mat's own fields.
       std::uint8_t* const out_8 = eight_bit ? out.ptr<std::uint8_t>(r) : nullptr;
       std::uint16_t* const out_16 = eight_bit ? nullptr : out.ptr<std::uint16_t>(r);
-      const std::uint8_t* marked = only ? only->ptr<std::uint8_t>(r) : nullptr;
-      for (int col = 0; col < w; ++col) {
-        if (marked && !marked[col]) continue;
-        if (!noise && in[col] == 0.0f) continue;
-        const int idx = r * w + col;
-        double e = (prnu ? in[col] * instance_.prnu_gain[idx] : in[col]) +
-                   (dsnu ? dark_e * instance_.dark_scale[idx] : dark_e);
-        e = std::min(e, n.full_well_e);
-        if (noise && n.read_noise_e > 0.0) e += n.read_noise_e * rng.normal();
-        const double half_up = e * gain + n.black_level_dn + 0.5;
-        // floor() of a non-negative value is its truncation (exact; floor is
-        // a library call without SSE4.1, and this runs per lit pixel).
-        const double dn = half_up >= 0.0 && half_up < 2e9 ? static_cast<double>(static_cast<std::int64_t>(half_up))
-                                                          : std::floor(half_up);
-        const int value = lut[static_cast<int>(std::clamp(dn, 0.0, static_cast<double>(max_code)))];
+      auto write = [&](int col, int value) {
         if (eight_bit)
           out_8[col] = static_cast<std::uint8_t>(value);
         else
           out_16[col] = static_cast<std::uint16_t>(value);
+      };
+      if (!noise) {
+        // Only the pixels that hold light (of `only`, where given, as no
+        // other does) differ from the unlit code.
+        auto lit = [&](int begin, int end) {
+          for (int col = begin; col < end; ++col)
+            if (in[col] != 0.0f) write(col, codeOf(std::min(in[col] + dark_e, n.full_well_e)));
+        };
+        if (options.only)
+          forEachRun(options.only->ptr<std::uint8_t>(r), w, lit);
+        else
+          lit(0, w);
+        continue;
+      }
+      for (int col = 0; col < w; ++col) {
+        const int idx = r * w + col;
+        double e = (prnu ? in[col] * instance_.prnu_gain[idx] : in[col]) +
+                   (dsnu ? dark_e * instance_.dark_scale[idx] : dark_e);
+        e = std::min(e, n.full_well_e);
+        if (n.read_noise_e > 0.0) e += n.read_noise_e * rng.normal();
+        write(col, codeOf(e));
       }
     }
     return out;
