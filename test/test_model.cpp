@@ -74,6 +74,34 @@ TEST(SparseInput, EncodesThresholdedImage) {
   EXPECT_THROW(encodeImages({cv::Mat(512, 512, CV_32F)}, spec), std::invalid_argument);
 }
 
+TEST(SparseInput, SiteImageHoldsWhatTheSitesHold) {
+  const InputSpec spec = inputSpecFor(shipped("thesis_sa"));
+  InputSpec few = spec;
+  few.max_sites = 10;  // the brightest ten, as the encoder keeps them
+  for (const InputSpec& s : {spec, few}) {
+    const auto input = encodeImages(imageList(), s);
+    const auto value = input.features.select(1, 0).to(torch::kDouble);
+    const double dn_per_value = std::max(1.0, s.max_code - s.black_level_dn);
+    std::vector<cv::Mat> expected;
+    for (std::size_t b = 0; b < imageList().size(); ++b) expected.push_back(cv::Mat::zeros(512, 512, CV_8U));
+    const auto& sites = input.sites->sites();
+    for (std::size_t k = 0; k < sites.size(); ++k)
+      expected[static_cast<std::size_t>(sites[k].batch)].at<std::uint8_t>(sites[k].y, sites[k].x) =
+          static_cast<std::uint8_t>(
+              std::lround(value[static_cast<std::int64_t>(k)].item<double>() * dn_per_value + s.black_level_dn));
+    const auto counts = input.sites->countsPerImage();
+    for (std::size_t b = 0; b < expected.size(); ++b) {
+      int count = -1;
+      const cv::Mat made = siteImage(imageList()[b], s, count);
+      ASSERT_EQ(made.type(), CV_8U);
+      EXPECT_EQ(cv::countNonZero(made != expected[b]), 0) << b << " of max_sites " << s.max_sites;
+      EXPECT_EQ(count, counts[b]) << b;
+    }
+  }
+  int count = 0;
+  EXPECT_THROW(siteImage(cv::Mat(256, 512, CV_8U, cv::Scalar(0)), spec, count), std::invalid_argument);
+}
+
 TEST(Sscnn, BatchOfDifferentSiteCountsEqualsSingleImages) {
   const SensorConfig c = shipped("thesis_sa");
   Model m = createModel(c, "resnet10_w16", 3);

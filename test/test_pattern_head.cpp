@@ -7,6 +7,7 @@
 
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
 #include "digital_sun_sensor/model/model.h"
+#include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/train/training_set.h"
 
@@ -63,6 +64,17 @@ TEST(PatternHead, MergedSpotsGetItAndItAnswersAsThePatternEstimator) {
       EXPECT_EQ(predicted[i].subfov_class, expected[i].subfov_class) << i;
     }
     EXPECT_EQ(predicted.back().active_sites, 0);
+    // predict() solves the images its sites make without the sparse tensor:
+    // the same predictions to the bit as through it.
+    const auto input = encodeImages(images, m->meta.input);
+    const auto through_sites = m->decode(m->net->forward(input), *input.sites);
+    for (std::size_t i = 0; i < images.size(); ++i) {
+      EXPECT_EQ(predicted[i].alpha_rad, through_sites[i].alpha_rad) << i;
+      EXPECT_EQ(predicted[i].beta_rad, through_sites[i].beta_rad) << i;
+      EXPECT_EQ(predicted[i].alpha_variance_rad2, through_sites[i].alpha_variance_rad2) << i;
+      EXPECT_EQ(predicted[i].active_sites, through_sites[i].active_sites) << i;
+      EXPECT_EQ(predicted[i].declined, through_sites[i].declined) << i;
+    }
   }
   // The input envelope is measured on what the head sees: every lit pixel,
   // more than the 16384 sites a data set's own spec keeps (an envelope
