@@ -9,6 +9,8 @@
 #include <stdexcept>
 #include <vector>
 
+#include "digital_sun_sensor/common/random.h"
+#include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sim/field_coverage.h"
@@ -42,6 +44,28 @@ Eigen::Vector2d windowedCentroidPx(const cv::Mat& electrons, const Eigen::Vector
     }
   }
   return {sx / s, sy / s};
+}
+
+// The runs of a mask's row (eight bytes at a time where it can) against a
+// byte-by-byte reading: any length, any non-zero byte value, runs that
+// start, end or break anywhere within a word.
+TEST(RowRuns, RunsAreThoseOfAByteByByteReading) {
+  Rng rng(3);
+  for (int trial = 0; trial < 2000; ++trial) {
+    const int cols = static_cast<int>(rng.below(70));
+    std::vector<std::uint8_t> row(static_cast<std::size_t>(cols));
+    const double on = rng.uniform();  // from mostly dark to mostly lit rows
+    for (auto& b : row) b = rng.uniform() < on ? static_cast<std::uint8_t>(1 + rng.below(255)) : 0;
+    std::vector<std::pair<int, int>> expected, found;
+    for (int c = 0; c < cols; ++c)
+      if (row[static_cast<std::size_t>(c)] && (c == 0 || !row[static_cast<std::size_t>(c - 1)])) {
+        int end = c;
+        while (end < cols && row[static_cast<std::size_t>(end)]) ++end;
+        expected.emplace_back(c, end);
+      }
+    forEachRun(row.data(), cols, [&](int begin, int end) { found.emplace_back(begin, end); });
+    ASSERT_EQ(found, expected) << "trial " << trial << ", " << cols << " bytes";
+  }
 }
 
 TEST(Renderer, SameSeedSameImageAndThreadCountDoesNotMatter) {
