@@ -195,5 +195,28 @@ TEST(SpotCache, ComposedBlendSamplesAsTheWeightedMaps) {
   EXPECT_NEAR(one.peak, peak, 0.05 * peak);
 }
 
+TEST(SpotCache, HoldsNoMoreThanItsMemoryLimitAndRecomputesTheSameMaps) {
+  OpticalPath p = monochromatic(2000.0, 0.55, 1.0, 128);
+  SpotCache cache(p, 1.0);
+  const Eigen::Vector3d sun = sunVectorFromAngles(0.4 * kRadPerDeg, -0.3 * kRadPerDeg);
+  const SpotMap first = cache.lookup(circle(60.0), sun).composed();
+  ASSERT_EQ(cache.nodesHeld(), 4u);
+  // Room for this cache's four maps and two more, whatever else the process holds.
+  struct RestoreLimit {
+    std::size_t bytes = SpotCache::memoryLimitBytes();
+    ~RestoreLimit() { SpotCache::setMemoryLimitBytes(bytes); }
+  } restore;
+  const std::size_t limit = SpotCache::memoryHeldBytes() + cache.bytesHeld() / 2;
+  SpotCache::setMemoryLimitBytes(limit);
+  for (double diameter : {50.0, 40.0, 30.0}) {  // other shapes: four new maps each
+    cache.lookup(circle(diameter), sun);
+    EXPECT_LE(SpotCache::memoryHeldBytes(), limit) << diameter;
+  }
+  EXPECT_GE(cache.nodesDropped(), 4u);
+  const SpotMap again = cache.lookup(circle(60.0), sun).composed();  // its maps were dropped: computed again
+  EXPECT_EQ(again.values, first.values);
+  EXPECT_EQ(again.total_power_um2, first.total_power_um2);
+}
+
 }  // namespace
 }  // namespace dss

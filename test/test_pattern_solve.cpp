@@ -335,15 +335,15 @@ TEST(PatternEstimatorWarmUp, ComputesTheDesignsSpotsBeforeTheFirstImage) {
       shippedPath("thesis_ca"), {"fov.alpha_max_deg=1", "fov.beta_max_deg=1", "optics.psf_node_step_deg=2"});
   const PatternEstimator estimator(small, kNoSigmaImages);
   const Renderer probe(SensorInstance::nominalOf(small));  // shares the design's cache
-  ASSERT_LT(probe.spotCache().nodesComputed(), 9u);        // the template's node only
+  ASSERT_LT(probe.spotCache().nodesHeld(), 9u);            // the template's node only
   const SunEstimator& as_estimator = estimator;
   as_estimator.warmUp(2);
-  EXPECT_EQ(probe.spotCache().nodesComputed(), 9u);
+  EXPECT_EQ(probe.spotCache().nodesHeld(), 9u);
   // An image and its estimate (the design's image at the answer) need no new node.
   const SunEstimate e = estimator.estimateOne(noiseFree(probe, 0.4, -0.6));
   EXPECT_TRUE(e.valid) << e.status;
   EXPECT_NEAR(radToDeg(e.alpha_rad), 0.4, 1e-3);
-  EXPECT_EQ(probe.spotCache().nodesComputed(), 9u);
+  EXPECT_EQ(probe.spotCache().nodesHeld(), 9u);
 }
 
 }  // namespace

@@ -57,7 +57,7 @@ int benchSim(int argc, char** argv) {
   std::cout << "{\"bench\":\"sim\",\"sensor\":\"" << config.name << "\",\"images\":" << count
             << ",\"threads\":" << spec.threads << ",\"images_per_s\":" << count / run_s
             << ",\"ms_per_image_per_thread\":" << 1000.0 * run_s * spec.threads / count
-            << ",\"warmup_s\":" << warm_s << ",\"psf_nodes\":" << generator.renderer(0).spotCache().nodesComputed()
+            << ",\"warmup_s\":" << warm_s << ",\"psf_nodes\":" << generator.renderer(0).spotCache().nodesHeld()
             << ",\"mean_nonzero_pixels\":" << static_cast<double>(nonzero) / count << ",\"rendered\":\""
             << describe(config) << "\"}" << std::endl;
   return 0;

@@ -2,12 +2,14 @@
 
 #include <filesystem>
 #include <iostream>
+#include <set>
 #include <sstream>
 #include <thread>
 
 #include "commands.h"
 #include "digital_sun_sensor/ros/bag_io.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sim/spot_cache.h"
 #include "progress.h"
 
 namespace dss::cli {
@@ -75,6 +77,10 @@ int runGenerate(int argc, char** argv) {
           {"instances", "K", "sensors drawn from the config (as-built errors, debris, FPN)", "1", false, false},
           {"rate", "HZ", "stamp spacing of the messages in the bag", "10", false, false},
           {"threads", "T", "render threads", threads, false, false},
+          {"diffraction-cache-mb", "MB",
+           "memory cap of the diffraction cache (0: 40 % of the machine's); past it the least recently used "
+           "spots are dropped and computed again (the same bag, more slowly)",
+           "0", false, false},
           {"out", "BAG", "output rosbag", "", true, false},
       });
   Args args("dss generate", "Renders a dataset into a rosbag of /sun_sensor/image + /sun_sensor/truth.", specs);
@@ -90,6 +96,9 @@ int runGenerate(int argc, char** argv) {
   spec.threads = static_cast<int>(args.getInt("threads"));
   if (args.getInt("count") <= 0) throw UsageError("dss generate: --count must be > 0");
   if (spec.instances < 1) throw UsageError("dss generate: --instances must be >= 1");
+  const long long cache_mb = args.getInt("diffraction-cache-mb");
+  if (cache_mb < 0) throw UsageError("dss generate: --diffraction-cache-mb must be >= 0");
+  if (cache_mb > 0) SpotCache::setMemoryLimitBytes(static_cast<std::size_t>(cache_mb) << 20);
 
   YAML::Emitter info;
   info << YAML::BeginMap << YAML::Key << "generator" << YAML::Value << "digital_sun_sensor dss generate 0.1.0";
@@ -117,6 +126,13 @@ int runGenerate(int argc, char** argv) {
   progress.finish();
   writer.commit();
   std::cerr << "wrote " << spec.count << " images of " << config.name << " to " << args.get("out") << "\n";
+  std::set<const SpotCache*> caches;  // instances of one mask height share theirs
+  for (int k = 0; k < spec.instances; ++k) caches.insert(&generator.renderer(k).spotCache());
+  std::size_t dropped = 0;
+  for (const SpotCache* cache : caches) dropped += cache->nodesDropped();
+  if (dropped > 0)
+    std::cerr << "diffraction cache: " << dropped << " spots dropped at its " << (SpotCache::memoryLimitBytes() >> 20)
+              << " MB cap and computed again (--diffraction-cache-mb)\n";
   return 0;
 }
 

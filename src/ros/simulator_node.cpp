@@ -54,6 +54,10 @@ SimulatorNode::SimulatorNode(ros::NodeHandle nh, ros::NodeHandle pnh)
   if (!(raster_step_rad_ > 0.0)) throw std::runtime_error("~raster_step_deg must be > 0");
   seed_ = static_cast<std::uint64_t>(pnh_.param("seed", 1));
   publish_spots_ = pnh_.param("publish_spots", true);
+  // The process's whole diffraction cache (a nodelet manager shares it).
+  const int cache_mb = pnh_.param("diffraction_cache_mb", 0);
+  if (cache_mb < 0) throw std::runtime_error("~diffraction_cache_mb must be >= 0 (0: 40 % of the machine's memory)");
+  if (cache_mb > 0) SpotCache::setMemoryLimitBytes(static_cast<std::size_t>(cache_mb) << 20);
   // One sensor drawn from the config (its as-built sigmas decide the errors).
   renderer_ = std::make_unique<Renderer>(SensorInstance::draw(config, seed_));
 
@@ -189,7 +193,10 @@ void SimulatorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
   stat.add("attitude source", last_from_attitude_ ? std::string("/attitude topic") : "profile " + profile_);
   stat.add("render time [ms]", last_render_ms_);
   stat.add("frames published", frame_count_);
-  stat.add("diffraction cache nodes", renderer_->spotCache().nodesComputed());
+  const SpotCache& cache = renderer_->spotCache();
+  stat.add("diffraction cache nodes", cache.nodesHeld());
+  stat.add("diffraction cache [MB]", cache.bytesHeld() >> 20);
+  stat.add("diffraction nodes dropped for memory", cache.nodesDropped());
 }
 
 // Nodelet front end: same class, same parameters.

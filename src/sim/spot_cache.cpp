@@ -1,5 +1,7 @@
 #include "digital_sun_sensor/sim/spot_cache.h"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -13,8 +15,29 @@
 
 namespace dss {
 
+namespace {
+
+std::size_t defaultMemoryLimitBytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES), page_bytes = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page_bytes <= 0) return std::size_t{4} << 30;  // unknown: 4 GiB
+  return static_cast<std::size_t>(0.4 * static_cast<double>(pages) * static_cast<double>(page_bytes));
+}
+
+std::atomic<std::size_t> memory_limit_bytes{defaultMemoryLimitBytes()};
+std::atomic<std::size_t> memory_held_bytes{0};
+
+std::size_t bytesOf(const SpotMap& map) { return sizeof(SpotMap) + map.values.size() * sizeof(float); }
+
+}  // namespace
+
 SpotCache::SpotCache(OpticalPath path, double node_step_deg)
     : path_(std::move(path)), step_rad_(degToRad(node_step_deg)) {}
+
+SpotCache::~SpotCache() { memory_held_bytes -= bytes_; }
+
+void SpotCache::setMemoryLimitBytes(std::size_t bytes) { memory_limit_bytes = bytes; }
+std::size_t SpotCache::memoryLimitBytes() { return memory_limit_bytes; }
+std::size_t SpotCache::memoryHeldBytes() { return memory_held_bytes; }
 
 std::shared_ptr<SpotCache> SpotCache::shared(const OpticalPath& path, double node_step_deg) {
   // Every field of the path, exactly (hex floats), and the node step.
@@ -37,9 +60,35 @@ std::shared_ptr<SpotCache> SpotCache::shared(const OpticalPath& path, double nod
   return cache;
 }
 
-std::size_t SpotCache::nodesComputed() const {
+std::size_t SpotCache::nodesHeld() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return nodes_.size();
+}
+
+std::size_t SpotCache::bytesHeld() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return bytes_;
+}
+
+std::size_t SpotCache::nodesDropped() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return dropped_;
+}
+
+void SpotCache::dropOverLimit(const std::string& keep) {
+  const std::size_t limit = memory_limit_bytes;
+  for (auto id = used_.begin(); limit > 0 && memory_held_bytes > limit && id != used_.end();) {
+    const auto entry = nodes_.find(*id);
+    if (entry->second.bytes == 0 || *id == keep) {
+      ++id;
+      continue;
+    }
+    bytes_ -= entry->second.bytes;
+    memory_held_bytes -= entry->second.bytes;
+    nodes_.erase(entry);
+    id = used_.erase(id);
+    ++dropped_;
+  }
 }
 
 std::shared_ptr<const SpotMap> SpotCache::node(const ApertureGeometry& aperture, const std::string& key, int ix,
@@ -52,23 +101,35 @@ std::shared_ptr<const SpotMap> SpotCache::node(const ApertureGeometry& aperture,
     std::lock_guard<std::mutex> lock(mutex_);
     auto it = nodes_.find(id);
     if (it != nodes_.end()) {
-      future = it->second;
+      future = it->second.map;
+      used_.splice(used_.end(), used_, it->second.used);
     } else {
       future = promise.get_future().share();
-      nodes_.emplace(id, future);
+      used_.push_back(id);
+      nodes_.emplace(id, Entry{future, 0, std::prev(used_.end())});
       owner = true;
     }
   }
   if (owner) {
     // Computed outside the lock: other nodes proceed in parallel, and threads
     // that need this one wait on the future.
+    std::size_t bytes = 0;
     try {
       const Eigen::Vector3d direction = path_.mode == OpticsMode::kFarField
                                             ? Eigen::Vector3d::UnitZ()
                                             : sunVectorFromAngles(ix * step_rad_, iy * step_rad_);
-      promise.set_value(std::make_shared<const SpotMap>(computeSpotMap(aperture, direction, path_)));
+      auto map = std::make_shared<const SpotMap>(computeSpotMap(aperture, direction, path_));
+      bytes = bytesOf(*map);
+      promise.set_value(std::move(map));
     } catch (...) {
       promise.set_exception(std::current_exception());
+    }
+    if (bytes > 0) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      nodes_.at(id).bytes = bytes;  // never dropped while computing: still held
+      bytes_ += bytes;
+      memory_held_bytes += bytes;
+      dropOverLimit(id);
     }
   }
   return future.get();

@@ -3,11 +3,16 @@
 // vignetting, obliquity and foreshortening, all smooth in angle, so a few
 // dozen diffraction computations serve millions of images. Thread-safe;
 // nodes are computed lazily, once, by the first thread that needs them.
+// The maps of every cache together hold at most a memory limit: a unit
+// whose apertures differ (as-built diameters, debris) needs a map set per
+// aperture, which for thesis_ca's 117 would grow past any machine's memory.
 #pragma once
 
 #include <array>
+#include <cstddef>
 #include <functional>
 #include <future>
+#include <list>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -20,6 +25,9 @@ namespace dss {
 class SpotCache {
  public:
   explicit SpotCache(OpticalPath path, double node_step_deg);
+  ~SpotCache();
+  SpotCache(const SpotCache&) = delete;
+  SpotCache& operator=(const SpotCache&) = delete;
 
   // One cache per optical path and node step in the whole process, shared by
   // every renderer that needs it (sensors that differ only in detector,
@@ -50,15 +58,36 @@ class SpotCache {
               const std::function<void(std::size_t, std::size_t)>& progress = {});
 
   const OpticalPath& path() const { return path_; }
-  std::size_t nodesComputed() const;
+  std::size_t nodesHeld() const;
+  std::size_t bytesHeld() const;
+  std::size_t nodesDropped() const;  // for the memory limit, since this cache was made
+
+  // The memory the maps of every cache in the process may hold together
+  // [bytes]. Past it, the cache that adds a map drops its least recently
+  // used ones (a map in use stays alive with its user); a dropped node is
+  // computed again when needed, to the same values, at the cost of its
+  // diffraction. Default: 40 % of the machine's memory; 0: no limit.
+  static void setMemoryLimitBytes(std::size_t bytes);
+  static std::size_t memoryLimitBytes();
+  static std::size_t memoryHeldBytes();  // by every cache together
 
  private:
+  struct Entry {
+    std::shared_future<std::shared_ptr<const SpotMap>> map;
+    std::size_t bytes = 0;                  // 0 while computing (never dropped then)
+    std::list<std::string>::iterator used;  // its place in used_
+  };
   std::shared_ptr<const SpotMap> node(const ApertureGeometry& aperture, const std::string& key, int ix, int iy);
+  // Drops least recently used maps (not `keep`) while every cache together
+  // holds more than the limit. Under mutex_.
+  void dropOverLimit(const std::string& keep);
 
   OpticalPath path_;
   double step_rad_;
   mutable std::mutex mutex_;
-  std::map<std::string, std::shared_future<std::shared_ptr<const SpotMap>>> nodes_;
+  std::map<std::string, Entry> nodes_;
+  std::list<std::string> used_;  // node ids, least recently used first
+  std::size_t bytes_ = 0, dropped_ = 0;
 };
 
 }  // namespace dss
