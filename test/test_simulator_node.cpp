@@ -1,5 +1,7 @@
 // rostest: simulator_node publishes image + truth at the configured rate, with
-// equal stamps, over a real master.
+// equal stamps, over a real master (simulator_node.test); under a small
+// ~diffraction_cache_mb it keeps to it (simulator_cache_cap.test).
+#include <diagnostic_msgs/DiagnosticArray.h>
 #include <digital_sun_sensor/SpotCentres.h>
 #include <digital_sun_sensor/SunAngles.h>
 #include <gtest/gtest.h>
@@ -8,6 +10,7 @@
 
 #include <map>
 #include <mutex>
+#include <string>
 
 #include "digital_sun_sensor/common/units.h"
 
@@ -74,6 +77,41 @@ TEST(SimulatorNode, PublishesImageAndTruthAtRateWithEqualStamps) {
   // been taken before the clear above, the image after it) and the last (its
   // truth may be in flight).
   EXPECT_GE(matched, static_cast<int>(images.size()) - 2);
+}
+
+// The simulator's status values by key, from its last /diagnostics message.
+std::map<std::string, std::string> simulator_values;
+
+void onDiagnostics(const diagnostic_msgs::DiagnosticArray::ConstPtr& m) {
+  std::lock_guard<std::mutex> lock(mutex);
+  for (const auto& status : m->status) {
+    if (status.name.find("simulator") == std::string::npos) continue;
+    std::map<std::string, std::string> values;
+    for (const auto& kv : status.values) values[kv.key] = kv.value;
+    if (values.count("diffraction cache nodes")) simulator_values = values;  // not its rate's status
+  }
+}
+
+TEST(SimulatorNode, KeepsItsDiffractionCacheWithinItsCap) {
+  ros::NodeHandle nh, pnh("~");
+  const double cap_mb = pnh.param("cache_cap_mb", 2.0);
+  auto image_sub = nh.subscribe("/sun_sensor/image", 100, onImage);
+  auto diagnostics_sub = nh.subscribe("/diagnostics", 10, onDiagnostics);
+  // Images go on (the spots the fixed attitude needs, computed again after
+  // the warm-up dropped them), and the node reports the dropped spots.
+  const ros::Time deadline = ros::Time::now() + ros::Duration(80.0);
+  bool reported = false;
+  while (ros::ok() && ros::Time::now() < deadline && !reported) {
+    ros::spinOnce();
+    ros::WallDuration(0.01).sleep();
+    std::lock_guard<std::mutex> lock(mutex);
+    reported = images.size() >= 5 && simulator_values.count("diffraction nodes dropped for memory") > 0;
+  }
+  std::lock_guard<std::mutex> lock(mutex);
+  ASSERT_GE(images.size(), 5u) << "fewer than 5 images within 80 s";
+  ASSERT_TRUE(reported) << "no simulator status with the diffraction cache on /diagnostics";
+  EXPECT_GT(std::stoul(simulator_values["diffraction nodes dropped for memory"]), 0u);
+  EXPECT_LE(std::stod(simulator_values["diffraction cache [MB]"]), cap_mb);
 }
 
 }  // namespace

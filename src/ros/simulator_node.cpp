@@ -194,9 +194,15 @@ void SimulatorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
   stat.add("render time [ms]", last_render_ms_);
   stat.add("frames published", frame_count_);
   const SpotCache& cache = renderer_->spotCache();
+  const std::size_t dropped = cache.nodesDropped();
+  // Spots dropped since the last report: renders that pay for diffraction again.
+  if (dropped > dropped_at_last_diagnosis_)
+    stat.mergeSummary(diagnostic_msgs::DiagnosticStatus::WARN,
+                      "diffraction cache at its memory cap: spots computed again (~diffraction_cache_mb)");
+  dropped_at_last_diagnosis_ = dropped;
   stat.add("diffraction cache nodes", cache.nodesHeld());
   stat.add("diffraction cache [MB]", cache.bytesHeld() >> 20);
-  stat.add("diffraction nodes dropped for memory", cache.nodesDropped());
+  stat.add("diffraction nodes dropped for memory", dropped);
 }
 
 // Nodelet front end: same class, same parameters.

@@ -5,8 +5,6 @@
 // random). Used by both the node executable and the nodelet.
 #pragma once
 
-#include "digital_sun_sensor/sim/renderer.h"
-
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <diagnostic_updater/publisher.h>
 #include <geometry_msgs/QuaternionStamped.h>
@@ -16,6 +14,8 @@
 #include <memory>
 #include <mutex>
 #include <string>
+
+#include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
 
@@ -59,6 +59,7 @@ class SimulatorNode {
   double last_render_ms_ = 0.0;
   bool last_from_attitude_ = false, last_in_fov_ = true;
   std::string last_warning_;
+  std::size_t dropped_at_last_diagnosis_ = 0;  // diffraction nodes dropped for memory
 };
 
 }  // namespace dss
