@@ -79,8 +79,8 @@ class SpotCache {
   };
   std::shared_ptr<const SpotMap> node(const ApertureGeometry& aperture, const std::string& key, int ix, int iy);
   // Drops least recently used maps (not `keep`) while every cache together
-  // holds more than the limit. Under mutex_.
-  void dropOverLimit(const std::string& keep);
+  // holds more than the limit; returns their bytes. Under mutex_.
+  std::size_t dropOverLimit(const std::string& keep);
 
   OpticalPath path_;
   double step_rad_;
