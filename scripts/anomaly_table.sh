@@ -29,7 +29,7 @@ for spec in stray_light=1 ghost=1 debris=1 hot_pixels=30 as_built=1 mix; do
   [ "$sensor" = thesis_sa ] || bag="$DATA/anom_${sensor}_${spec%%=*}.bag"
   [ "$COUNT" = 2000 ] || bag="${bag%.bag}_$COUNT.bag"
   [ -f "$bag" ] || "$DSS" generate --sensor "$ROOT/config/sensors/$sensor.yaml" --anomalies "$spec" --instances 20 \
-    --count "$COUNT" --seed "$seed" --out "$bag" 2>/dev/null
+    --count "$COUNT" --seed "$seed" --out "$bag"  # its progress on stderr: thesis_ca's units take a minute an image
   sscnn=$("$DSS" eval --data "$bag" --estimator "sscnn:$ROOT/models/$sensor.dssmodel" --screen --crlb-samples 0 \
     --csv "$bag.sscnn.csv" 2>/dev/null)
   centroid=$("$DSS" eval --data "$bag" --estimator "$baseline" --screen --crlb-samples 0 --csv "$bag.$kind.csv" 2>/dev/null)
@@ -37,6 +37,8 @@ for spec in stray_light=1 ghost=1 debris=1 hot_pixels=30 as_built=1 mix; do
 import csv, json, sys
 name, s, c = sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3])
 def cells(e):
+    if e["alpha_mean_deg"] is None:  # nothing answered
+        return "— | — | %.1f %%" % (100 * e["valid_rate"])
     return "%.5f / %.5f | %.4f / %.4f | %.1f %%" % (e["alpha_mean_deg"], e["beta_mean_deg"], e["alpha_max_deg"],
                                                   e["beta_max_deg"], 100 * e["valid_rate"])
 # Each estimator's mean is over the images it marked valid; the baseline declines some hard ones
@@ -46,7 +48,7 @@ both = [k for k in rows[0] if rows[0][k]["valid"] == "1" and rows[1].get(k, {}).
 def mean(r, axis):
     return sum(abs(float(r[k][axis + "_error_deg"])) for k in both) / max(1, len(both))
 common = "%.6f / %.6f, %.6f / %.6f (%d)" % (mean(rows[0], "alpha"), mean(rows[0], "beta"), mean(rows[1], "alpha"),
-                                           mean(rows[1], "beta"), len(both))
+                                           mean(rows[1], "beta"), len(both)) if both else "— (0)"
 print("| %s | %s | %s | %s |" % (name, cells(s), cells(c), common))
 PY
 done
