@@ -201,6 +201,26 @@ TEST_F(PatternSolveTest, RepeatingPatternIsDecidedByTheDesignsImageOrTheQuadrant
   EXPECT_LT(s->alternative_cost_ratio, PatternEstimator::kAmbiguousCostRatio);
   const double period_deg = std::abs(radToDeg(s->angles_rad.x() - s->alternative_rad.x()));
   EXPECT_NEAR(period_deg, 5.74, 0.05);
+  // A caller that takes the runner-up gets the fit there, the best
+  // candidate as its alternative; one that keeps the best, the same
+  // solution as without a choice.
+  int asked = 0;
+  const auto other =
+      solver_->solve(image, std::nullopt, [&](const PatternSolution& best, const PatternSolution& runner_up) {
+        ++asked;
+        EXPECT_GT((best.angles_rad - runner_up.angles_rad).norm(), degToRad(PatternSolution::kDistinctDeg));
+        return true;
+      });
+  ASSERT_TRUE(other);
+  EXPECT_EQ(asked, 1);
+  EXPECT_NEAR(radToDeg(other->angles_rad.x()), radToDeg(s->alternative_rad.x()), 0.01);
+  EXPECT_NEAR(radToDeg(other->alternative_rad.x()), radToDeg(s->angles_rad.x()), 0.01);
+  EXPECT_LT(other->residual_rms_dn, 1.1 * s->residual_rms_dn);
+  const auto kept =
+      solver_->solve(image, std::nullopt, [](const PatternSolution&, const PatternSolution&) { return false; });
+  ASSERT_TRUE(kept);
+  EXPECT_EQ(kept->angles_rad, s->angles_rad);
+  EXPECT_EQ(kept->alternative_rad, s->alternative_rad);
 
   PatternEstimator estimator(*config_, kNoSigmaImages);
   EXPECT_EQ(estimator.source(), "pattern");

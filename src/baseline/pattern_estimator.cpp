@@ -259,40 +259,35 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
     est.status = status::kNoSun;
     return est;
   }
-  auto solution = solver_.solve(image, window ? *window : field_);
-  if (!solution) {
-    est.status = status::kNoMatch;
-    return est;
-  }
   // Two places fit the template about equally: the design's whole image at
   // each (its vignetting, obliquity and exposure at that angle, which the
-  // template at normal incidence leaves out) says which one the image is.
-  bool ambiguous = solution->alternative_cost_ratio < kAmbiguousCostRatio;
+  // template at normal incidence leaves out) says which one the image is,
+  // before the solve fits the chosen one on every pixel.
+  bool ambiguous = false;
   std::optional<AliasEvidence> evidence;  // its unexplained_z is the answer's place's
-  if (ambiguous) {
-    evidence = aliasEvidence(image, solution->angles_rad, solution->alternative_rad);
+  const auto choose = [&](const PatternSolution& best, const PatternSolution& runner_up) {
+    ambiguous = runner_up.residual_rms_dn < kAmbiguousCostRatio * best.residual_rms_dn;
+    evidence.reset();
+    if (!ambiguous) return false;
+    evidence = aliasEvidence(image, best.angles_rad, runner_up.angles_rad);
     // Otherwise a coarse direction that lies clearly nearer one place: at the
     // places the design's image cannot tell apart (mirror images of each
     // other, 1.15 % of thesis_ca's field) it is all there is.
     bool other_nearer = false, coarse_decides = false;
     if (!evidence->decides() && coarse) {
       const Eigen::Vector2d c(coarse->alpha_rad, coarse->beta_rad);
-      const double here = (solution->angles_rad - c).norm(), there = (solution->alternative_rad - c).norm();
+      const double here = (best.angles_rad - c).norm(), there = (runner_up.angles_rad - c).norm();
       coarse_decides = std::abs(there - here) >= kCoarseDecisionSigmas * coarse->sigma_rad;
       other_nearer = there < here;
     }
-    if ((evidence->decides() && evidence->z > 0.0) || (coarse_decides && !other_nearer)) {
-      ambiguous = false;
-    } else if (evidence->decides() || coarse_decides) {
-      const Eigen::Vector2d other = solution->alternative_rad;
-      solution = solver_.refine(image, other);
-      if (!solution) {
-        est.status = status::kNoMatch;
-        return est;
-      }
-      solution->alternative_rad = other;  // refined from there; the first fit is the runner-up now
-      ambiguous = false;
-    }
+    if (!evidence->decides() && !coarse_decides) return false;  // ambiguous: the better fit's angles
+    ambiguous = false;
+    return evidence->decides() ? evidence->z < 0.0 : other_nearer;
+  };
+  const auto solution = solver_.solve(image, window ? *window : field_, choose);
+  if (!solution) {
+    est.status = status::kNoMatch;
+    return est;
   }
   est.alpha_rad = solution->angles_rad.x();
   est.beta_rad = solution->angles_rad.y();

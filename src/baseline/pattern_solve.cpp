@@ -236,8 +236,8 @@ struct Peak {
 
 }  // namespace
 
-std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
-                                                    const std::optional<AngleWindow>& window) const {
+std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const std::optional<AngleWindow>& window,
+                                                    const RunnerUpChoice& choose) const {
   thread_local Pixels buffers;  // allocated once per thread, refilled per image
   const Pixels& px = buffers;
   pixelsOf(image, buffers);
@@ -394,42 +394,46 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image,
   if (fits.empty()) return std::nullopt;
   std::sort(fits.begin(), fits.end(),
             [](const PatternSolution& a, const PatternSolution& b) { return a.residual_rms_dn < b.residual_rms_dn; });
-  // The first candidate whose fit on every pixel stays in the window; the
-  // runner-up's residual against its own on the same subsample.
-  std::optional<PatternSolution> best;
-  std::size_t winner = 0;
-  for (; winner < fits.size() && !best; ++winner) {
-    best = fit(px, fits[winner].angles_rad, 1, options_.iterations);
-    if (best && window && !window->contains(best->angles_rad)) best.reset();
-  }
-  if (!best) return std::nullopt;
-  const PatternSolution& chosen = fits[winner - 1];
-  for (std::size_t k = 0; k < fits.size(); ++k)
-    if (k != winner - 1 && (fits[k].angles_rad - chosen.angles_rad).norm() > degToRad(PatternSolution::kDistinctDeg)) {
-      best->alternative_rad = fits[k].angles_rad;
-      best->alternative_cost_ratio = fits[k].residual_rms_dn / std::max(chosen.residual_rms_dn, 1e-30);
-      break;
+  // The first candidate whose fit on every pixel stays in the window (or
+  // the runner-up, where `choose` takes it); the runner-up's residual
+  // against the candidate's own on the same subsample.
+  for (std::size_t winner = 0; winner < fits.size(); ++winner) {
+    const PatternSolution& chosen = fits[winner];
+    std::size_t runner_up = fits.size();
+    for (std::size_t k = 0; k < fits.size() && runner_up == fits.size(); ++k)
+      if (k != winner && (fits[k].angles_rad - chosen.angles_rad).norm() > degToRad(PatternSolution::kDistinctDeg))
+        runner_up = k;
+    const bool other = runner_up < fits.size() && choose && choose(chosen, fits[runner_up]);
+    const PatternSolution& start = other ? fits[runner_up] : chosen;
+    // A candidate not refined (screened out) is refined first, on the subsample.
+    const auto from = start.gain > 0.0
+                          ? std::optional<PatternSolution>(start)
+                          : fit(px, start.angles_rad, options_.candidate_stride, options_.candidate_iterations);
+    auto best = from ? fit(px, from->angles_rad, 1, options_.iterations, from->gain) : std::nullopt;
+    if (!best) continue;
+    if (other) {
+      best->alternative_rad = chosen.angles_rad;
+      best->alternative_cost_ratio = chosen.residual_rms_dn / std::max(start.residual_rms_dn, 1e-30);
+      return best;
     }
-  return best;
+    if (window && !window->contains(best->angles_rad)) continue;
+    if (runner_up < fits.size()) {
+      best->alternative_rad = fits[runner_up].angles_rad;
+      best->alternative_cost_ratio = fits[runner_up].residual_rms_dn / std::max(chosen.residual_rms_dn, 1e-30);
+    }
+    return best;
+  }
+  return std::nullopt;
 }
 
-std::optional<PatternSolution> PatternSolver::refine(const cv::Mat& image, const Eigen::Vector2d& start_rad) const {
-  thread_local Pixels buffers;  // allocated once per thread, refilled per image
-  const Pixels& px = buffers;
-  pixelsOf(image, buffers);
-  if (px.lit.empty()) return std::nullopt;
-  const auto start = fit(px, start_rad, options_.candidate_stride, options_.candidate_iterations);
-  return start ? fit(px, start->angles_rad, 1, options_.iterations) : std::nullopt;
-}
-
-std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vector2d angles, int stride,
-                                                  int iterations) const {
+std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vector2d angles, int stride, int iterations,
+                                                  std::optional<double> start_gain) const {
   const auto step_by = static_cast<std::size_t>(std::max(stride, 1));
   const PatternTemplate& p = *template_;
   thread_local std::vector<double> t, gx, gy;  // the template along a pixel run (stride 1)
   // The gain that best explains the lit pixels at the start's shift.
-  double gain = 0.0;
-  {
+  double gain = start_gain.value_or(0.0);
+  if (!start_gain) {
     const Eigen::Vector2d d = shiftUm(angles);
     const PatternTemplate::Shifted shifted =
         p.shifted(config_.detector.width_px, config_.detector.height_px, d.x(), d.y());

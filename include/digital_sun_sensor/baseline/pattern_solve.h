@@ -10,6 +10,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <opencv2/core.hpp>
@@ -65,14 +66,20 @@ class PatternSolver {
   explicit PatternSolver(const SensorConfig& config, PatternSolveOptions options = {});
   ~PatternSolver();
 
+  // Whether the fit on every pixel starts at the search's runner-up (a
+  // place more than kDistinctDeg away) instead of its best: for a caller
+  // that tells two places apart itself. It is given both candidates' fits
+  // on the subsample, and is asked before the fit on every pixel (the
+  // costliest step), which then runs at one place only.
+  using RunnerUpChoice = std::function<bool(const PatternSolution& best, const PatternSolution& runner_up)>;
+
   // nullopt: no lit pixel, or no shift in the field (in `window`, when
   // given) explains the light. The image must have the config's size
-  // (CV_8U or CV_16U).
-  std::optional<PatternSolution> solve(const cv::Mat& image, const std::optional<AngleWindow>& window = {}) const;
-
-  // Gauss-Newton from given angles (no search): for tests and for callers
-  // with a coarse estimate of their own.
-  std::optional<PatternSolution> refine(const cv::Mat& image, const Eigen::Vector2d& start_rad) const;
+  // (CV_8U or CV_16U). Where `choose` takes the runner-up, the solution is
+  // fitted there (and may leave the window), and the best candidate is its
+  // alternative.
+  std::optional<PatternSolution> solve(const cv::Mat& image, const std::optional<AngleWindow>& window = {},
+                                       const RunnerUpChoice& choose = {}) const;
 
   // The pattern's lateral drift [um] at the given sun angles (the spot of
   // an aperture at the mask centre, through any cover glass).
@@ -101,8 +108,10 @@ class PatternSolver {
   struct Level;
   // The image's pixels into px (its buffers reused).
   void pixelsOf(const cv::Mat& image, Pixels& px) const;
-  // Gauss-Newton on every `stride`-th pixel.
-  std::optional<PatternSolution> fit(const Pixels& pixels, Eigen::Vector2d angles, int stride, int iterations) const;
+  // Gauss-Newton on every `stride`-th pixel, from `gain` where given (else
+  // the gain that best explains the lit pixels at the start).
+  std::optional<PatternSolution> fit(const Pixels& pixels, Eigen::Vector2d angles, int stride, int iterations,
+                                     std::optional<double> gain = {}) const;
   Eigen::Vector2d anglesOfShift(const Eigen::Vector2d& shift_um) const;
 
   SensorConfig config_;
