@@ -520,10 +520,12 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     angles += step.head<2>();
     gain += step[2];
     // Each step is 15-40 times smaller than the one before: after one below
-    // 1 % of the solution's sigma (or 1e-8 rad) the solution lies within
-    // about 0.1 % of it, and this pass's normal matrix and residual stand
+    // 30 % of the solution's sigma (or 1e-8 rad) the solution lies within
+    // about 2 % of it, and this pass's normal matrix and residual stand
     // for the solution's (another pass would change them by the step's
-    // square).
+    // square). On 40 thesis_ca images the fit on every pixel, from its
+    // candidate's on the subsample, stepped 0.36-5.4 sigma, then
+    // 0.006-0.38, then 0.0002-0.03: it stops after two passes, not three.
     const Eigen::Matrix3d pass_inverse = normal.inverse();
     const double sigma_min = std::sqrt(residual_variance() * std::min(pass_inverse(0, 0), pass_inverse(1, 1)));
     if (step.head<2>().norm() < std::max(1e-8, kConvergedSigmaShare * sigma_min)) {

@@ -101,7 +101,7 @@ class PatternSolver {
   // others 0.935 or less.
   static constexpr double kKeepScoreShare = 0.96;
   // Gauss-Newton stops after a step below this share of the solution's sigma.
-  static constexpr double kConvergedSigmaShare = 0.01;
+  static constexpr double kConvergedSigmaShare = 0.3;
 
  private:
   struct Pixels;
