@@ -218,5 +218,37 @@ TEST(SpotCache, HoldsNoMoreThanItsMemoryLimitAndRecomputesTheSameMaps) {
   EXPECT_EQ(again.total_power_um2, first.total_power_um2);
 }
 
+// The limit holds over every cache together, by their maps' last use: a
+// cache that adds maps past it drops another's older maps, not its own
+// newer ones (a unit of `dss generate` renders every K-th image, each with
+// its own cache: dropping only the adder's own maps let idle caches keep
+// theirs and the total pass the limit).
+TEST(SpotCache, DropsTheLeastRecentlyUsedMapsOfAnyCache) {
+  SpotCache idle(monochromatic(2000.0, 0.55, 1.0, 128), 1.0), busy(monochromatic(2000.0, 0.60, 1.0, 128), 1.0);
+  const Eigen::Vector3d sun = sunVectorFromAngles(0.4 * kRadPerDeg, -0.3 * kRadPerDeg);
+  idle.lookup(circle(60.0), sun);
+  ASSERT_EQ(idle.nodesHeld(), 4u);
+  struct RestoreLimit {
+    std::size_t bytes = SpotCache::memoryLimitBytes();
+    ~RestoreLimit() { SpotCache::setMemoryLimitBytes(bytes); }
+  } restore;
+  // Room for two more maps than every cache holds now.
+  const std::size_t limit = SpotCache::memoryHeldBytes() + idle.bytesHeld() / 2;
+  SpotCache::setMemoryLimitBytes(limit);
+  busy.lookup(circle(60.0), sun);
+  EXPECT_LE(SpotCache::memoryHeldBytes(), limit);
+  EXPECT_EQ(busy.nodesDropped(), 0u);  // the idle cache's maps went first
+  EXPECT_GT(idle.nodesDropped(), 0u);
+  busy.lookup(circle(50.0), sun);  // four more
+  EXPECT_LE(SpotCache::memoryHeldBytes(), limit);
+  EXPECT_TRUE(idle.nodesHeld() == 0 || busy.nodesDropped() == 0)
+      << "the busy cache dropped a map before the idle one's older ones";
+  const std::size_t busy_dropped = busy.nodesDropped();
+  idle.lookup(circle(60.0), sun);  // computed again: now the busy cache's maps are the older ones
+  EXPECT_LE(SpotCache::memoryHeldBytes(), limit);
+  EXPECT_EQ(idle.nodesHeld(), 4u);
+  EXPECT_GT(busy.nodesDropped(), busy_dropped);
+}
+
 }  // namespace
 }  // namespace dss

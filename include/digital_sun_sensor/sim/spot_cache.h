@@ -10,6 +10,7 @@
 
 #include <array>
 #include <cstddef>
+#include <cstdint>
 #include <functional>
 #include <future>
 #include <list>
@@ -63,10 +64,10 @@ class SpotCache {
   std::size_t nodesDropped() const;  // for the memory limit, since this cache was made
 
   // The memory the maps of every cache in the process may hold together
-  // [bytes]. Past it, the cache that adds a map drops its least recently
-  // used ones (a map in use stays alive with its user); a dropped node is
-  // computed again when needed, to the same values, at the cost of its
-  // diffraction. Default: 40 % of the machine's memory; 0: no limit.
+  // [bytes]. Past it, the least recently used maps of any cache are dropped
+  // (a map in use stays alive with its user); a dropped node is computed
+  // again when needed, to the same values, at the cost of its diffraction.
+  // Default: 40 % of the machine's memory; 0: no limit.
   static void setMemoryLimitBytes(std::size_t bytes);
   static std::size_t memoryLimitBytes();
   static std::size_t memoryHeldBytes();  // by every cache together
@@ -76,11 +77,16 @@ class SpotCache {
     std::shared_future<std::shared_ptr<const SpotMap>> map;
     std::size_t bytes = 0;                  // 0 while computing (never dropped then)
     std::list<std::string>::iterator used;  // its place in used_
+    std::uint64_t last_use = 0;             // on the process-wide use clock
   };
   std::shared_ptr<const SpotMap> node(const ApertureGeometry& aperture, const std::string& key, int ix, int iy);
-  // Drops least recently used maps (not `keep`) while every cache together
-  // holds more than the limit; returns their bytes. Under mutex_.
-  std::size_t dropOverLimit(const std::string& keep);
+  // This cache's least recently used map that may be dropped (held, not
+  // `keep`): its id in used_, or used_.end(). Under mutex_.
+  std::list<std::string>::iterator droppable(const std::string& keep);
+  // Drops the least recently used maps of every cache in the process (not
+  // `keep` of `adder`) while they hold more than the limit; returns their
+  // bytes. Under no cache's mutex.
+  static std::size_t dropOverLimit(const SpotCache* adder, const std::string& keep);
 
   OpticalPath path_;
   double step_rad_;
