@@ -195,6 +195,12 @@ TEST(SpotCache, ComposedBlendSamplesAsTheWeightedMaps) {
   EXPECT_NEAR(one.peak, peak, 0.05 * peak);
 }
 
+// The process's cache memory limit as it was, again at the end of a test.
+struct RestoredMemoryLimit {
+  std::size_t bytes = SpotCache::memoryLimitBytes();
+  ~RestoredMemoryLimit() { SpotCache::setMemoryLimitBytes(bytes); }
+};
+
 TEST(SpotCache, HoldsNoMoreThanItsMemoryLimitAndRecomputesTheSameMaps) {
   OpticalPath p = monochromatic(2000.0, 0.55, 1.0, 128);
   SpotCache cache(p, 1.0);
@@ -202,10 +208,7 @@ TEST(SpotCache, HoldsNoMoreThanItsMemoryLimitAndRecomputesTheSameMaps) {
   const SpotMap first = cache.lookup(circle(60.0), sun).composed();
   ASSERT_EQ(cache.nodesHeld(), 4u);
   // Room for this cache's four maps and two more, whatever else the process holds.
-  struct RestoreLimit {
-    std::size_t bytes = SpotCache::memoryLimitBytes();
-    ~RestoreLimit() { SpotCache::setMemoryLimitBytes(bytes); }
-  } restore;
+  const RestoredMemoryLimit restore;
   const std::size_t limit = SpotCache::memoryHeldBytes() + cache.bytesHeld() / 2;
   SpotCache::setMemoryLimitBytes(limit);
   for (double diameter : {50.0, 40.0, 30.0}) {  // other shapes: four new maps each
@@ -220,18 +223,15 @@ TEST(SpotCache, HoldsNoMoreThanItsMemoryLimitAndRecomputesTheSameMaps) {
 
 // The limit holds over every cache together, by their maps' last use: a
 // cache that adds maps past it drops another's older maps, not its own
-// newer ones (a unit of `dss generate` renders every K-th image, each with
-// its own cache: dropping only the adder's own maps let idle caches keep
-// theirs and the total pass the limit).
+// newer ones (dropping only the adder's own let an idle cache, another
+// renderer in the process, keep all of its while the adder dropped maps
+// its image still needed).
 TEST(SpotCache, DropsTheLeastRecentlyUsedMapsOfAnyCache) {
   SpotCache idle(monochromatic(2000.0, 0.55, 1.0, 128), 1.0), busy(monochromatic(2000.0, 0.60, 1.0, 128), 1.0);
   const Eigen::Vector3d sun = sunVectorFromAngles(0.4 * kRadPerDeg, -0.3 * kRadPerDeg);
   idle.lookup(circle(60.0), sun);
   ASSERT_EQ(idle.nodesHeld(), 4u);
-  struct RestoreLimit {
-    std::size_t bytes = SpotCache::memoryLimitBytes();
-    ~RestoreLimit() { SpotCache::setMemoryLimitBytes(bytes); }
-  } restore;
+  const RestoredMemoryLimit restore;
   // Room for two more maps than every cache holds now.
   const std::size_t limit = SpotCache::memoryHeldBytes() + idle.bytesHeld() / 2;
   SpotCache::setMemoryLimitBytes(limit);
