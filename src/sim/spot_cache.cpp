@@ -46,11 +46,12 @@ void handBackDroppedMemory() {
 #endif
 }
 
-// Every cache of the process, for the limit: a unit of `dss generate`
-// (its own mask height, so its own cache) renders every K-th image, and
-// while one cache drops only its own maps the idle ones keep theirs: 20
-// as-built thesis_ca units held 15 GB under a 9.4 GB limit. Held while
-// maps are dropped across caches, so that none is destroyed meanwhile.
+// Every cache of the process, for the limit: where only the cache adding
+// a map dropped its own, an idle cache (another renderer: a unit of
+// another mask height, a design) kept all of its while the adder dropped
+// maps its image still needed (10 as-built thesis_ma units in turn under
+// 100 MB held 106 MB). Held while maps are dropped across caches, so that
+// none is destroyed meanwhile.
 std::mutex caches_mutex;
 std::set<SpotCache*> caches;
 std::atomic<std::uint64_t> use_clock{0};
