@@ -142,25 +142,29 @@ Eigen::Vector2d PatternSolver::anglesOfShift(const Eigen::Vector2d& shift_um) co
 
 namespace {
 
-// Sums of the image's values over blocks of `factor` x `factor` pixels
-// (the blocks at the right and bottom edges cut short). The values are
-// codes: their sums are whole numbers, exact in any order. A row of blocks
-// is summed in integers and written once.
-template <typename Code>
+// Sums of an image's values over blocks of `factor` x `factor` pixels (the
+// blocks at the right and bottom edges cut short), in `Sum`. The values are
+// codes or sums of codes: their sums are whole numbers, exact in any order.
+// A row of blocks is summed down its columns first (whole rows at a time,
+// which the compiler vectorises; per block of two pixels the loop cost more
+// than the additions), then across each block, and written once.
+template <typename Value, typename Sum>
 void blockSums(const cv::Mat& image, int factor, cv::Mat& sums) {
-  std::vector<std::uint32_t> row_sums(static_cast<std::size_t>(sums.cols));
+  thread_local std::vector<Sum> column_sums;
+  column_sums.resize(static_cast<std::size_t>(image.cols));
+  Sum* column = column_sums.data();
   for (int block_row = 0; block_row < sums.rows; ++block_row) {
-    std::fill(row_sums.begin(), row_sums.end(), 0u);
+    std::fill(column_sums.begin(), column_sums.end(), Sum{0});
     for (int r = block_row * factor, r_end = std::min(image.rows, r + factor); r < r_end; ++r) {
-      const Code* from = image.ptr<Code>(r);
-      for (int c = 0, block = 0; c < image.cols; ++block) {
-        std::uint32_t s = 0;
-        for (const int end = std::min(c + factor, image.cols); c < end; ++c) s += from[c];
-        row_sums[static_cast<std::size_t>(block)] += s;
-      }
+      const Value* from = image.ptr<Value>(r);
+      for (int c = 0; c < image.cols; ++c) column[c] += from[c];
     }
     double* to = sums.ptr<double>(block_row);
-    for (int block = 0; block < sums.cols; ++block) to[block] = row_sums[static_cast<std::size_t>(block)];
+    for (int c = 0, block = 0; c < image.cols; ++block) {
+      Sum s{0};
+      for (const int end = std::min(c + factor, image.cols); c < end; ++c) s += column[c];
+      to[block] = static_cast<double>(s);
+    }
   }
 }
 
@@ -180,22 +184,12 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
     const int f = levels_[l].factor;
     cv::Mat& sums = px.block_sums[l];
     sums.create((image.rows + f - 1) / f, (image.cols + f - 1) / f, CV_64F);
-    if (l + 1 == levels_.size()) {
-      if (image.type() == CV_8U)
-        blockSums<std::uint8_t>(image, f, sums);
-      else
-        blockSums<std::uint16_t>(image, f, sums);
-    } else {
-      sums.setTo(0.0);
-      const cv::Mat& in = px.block_sums[l + 1];
-      const int ratio = f / levels_[l + 1].factor;
-      for (int r = 0; r < in.rows; ++r) {
-        const double* from = in.ptr<double>(r);
-        double* to = sums.ptr<double>(r / ratio);
-        for (int c = 0, block = 0; c < in.cols; ++block)  // to[c / ratio] += from[c], without the divisions
-          for (const int end = std::min(c + ratio, in.cols); c < end; ++c) to[block] += from[c];
-      }
-    }
+    if (l + 1 < levels_.size())  // the finer level's sums, summed again
+      blockSums<double, double>(px.block_sums[l + 1], f / levels_[l + 1].factor, sums);
+    else if (image.type() == CV_8U)
+      blockSums<std::uint8_t, std::uint32_t>(image, f, sums);
+    else
+      blockSums<std::uint16_t, std::uint32_t>(image, f, sums);
   }
   // Sized first and filled through pointers: a push_back per pixel cost
   // more than the rest of this function.
