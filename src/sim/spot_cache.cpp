@@ -119,6 +119,7 @@ std::list<std::string>::iterator SpotCache::droppable(const std::string& keep) {
 std::size_t SpotCache::dropOverLimit(const SpotCache* adder, const std::string& keep) {
   const std::size_t limit = memory_limit_bytes;
   std::size_t dropped_bytes = 0;
+  if (limit == 0 || memory_held_bytes <= limit) return 0;  // every map added below the limit: no lock taken
   std::lock_guard<std::mutex> registry(caches_mutex);
   while (limit > 0 && memory_held_bytes > limit) {
     // The cache whose droppable map was used longest ago (one cache's
