@@ -195,6 +195,39 @@ TEST(SpotCache, ComposedBlendSamplesAsTheWeightedMaps) {
   EXPECT_NEAR(one.peak, peak, 0.05 * peak);
 }
 
+TEST(SpotCache, ComposedBlendOfMapsOnOneLatticeIsTheirWeightedSum) {
+  // Maps on the same samples (uncropped nodes, as thesis_ca's) take the
+  // one-pass path: each sample the weighted sum in the order of the maps,
+  // as the general path adds them, to the bit.
+  SpotMap a;
+  a.cols = 37, a.rows = 5, a.step_um = 1.0, a.u0_um = -18.0, a.v0_um = -2.0;
+  for (int i = 0; i < a.cols * a.rows; ++i) a.values.push_back(0.001f * static_cast<float>((i * 7919) % 1013));
+  a.total_power_um2 = 2.0;
+  SpotMap b = a;
+  for (float& v : b.values) v = 1.3f - v;
+  b.total_power_um2 = 3.0;
+  SpotCache::Blend blend;
+  blend.maps = {std::make_shared<const SpotMap>(a), std::make_shared<const SpotMap>(b),
+                std::make_shared<const SpotMap>(a)};
+  blend.weights = {0.3f, 0.6f, 0.1f};
+  blend.count = 3;
+  const SpotMap one = blend.composed();
+  ASSERT_EQ(one.values.size(), a.values.size());
+  float peak = 0.0f;
+  for (std::size_t i = 0; i < a.values.size(); ++i) {
+    float expected = 0.0f;
+    expected += 0.3f * a.values[i];
+    expected += 0.6f * b.values[i];
+    expected += 0.1f * a.values[i];
+    ASSERT_EQ(one.values[i], expected) << "sample " << i;
+    peak = std::max(peak, expected);
+  }
+  EXPECT_EQ(one.peak, peak);
+  EXPECT_DOUBLE_EQ(one.total_power_um2, blend.weights[0] * 2.0 + blend.weights[1] * 3.0 + blend.weights[2] * 2.0);
+  EXPECT_EQ(one.u0_um, a.u0_um);
+  EXPECT_EQ(one.cols, a.cols);
+}
+
 // The process's cache memory limit as it was, again at the end of a test.
 struct RestoredMemoryLimit {
   std::size_t bytes = SpotCache::memoryLimitBytes();
