@@ -4,7 +4,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <opencv2/imgproc.hpp>
 #include <stdexcept>
 #include <string>
 
@@ -91,19 +90,14 @@ std::vector<cv::Mat> PatternEstimator::designImages(const std::vector<Eigen::Vec
   std::vector<cv::Mat> images;
   for (const auto& place : places_rad) images.push_back(designImage(place, pixels));
   if (!pixels) return images;
-  // The pixels on the edge of the rendered ones (a neighbour left out): light
-  // there may go on beyond them.
-  cv::Mat inner;
-  cv::erode(*pixels, inner, cv::Mat(), cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(255));
-  std::vector<cv::Point> edge;
-  cv::findNonZero(*pixels & ~inner, edge);
+  // A design image lighting a pixel on their edge: its light may go on beyond them.
   for (const cv::Mat& image : images)
-    for (const cv::Point& p : edge)
-      if (image.at<std::uint16_t>(p) != unlit_code_) {
-        pixels.reset();
-        for (std::size_t k = 0; k < places_rad.size(); ++k) images[k] = designImage(places_rad[k], std::nullopt);
-        return images;
-      }
+    if (anyOnMaskEdge(pixels->ptr<std::uint8_t>(), pixels->rows, pixels->cols, pixels->step[0],
+                      [&](int r, int c) { return image.at<std::uint16_t>(r, c) != unlit_code_; })) {
+      pixels.reset();
+      for (std::size_t k = 0; k < places_rad.size(); ++k) images[k] = designImage(places_rad[k], std::nullopt);
+      return images;
+    }
   return images;
 }
 

@@ -2,6 +2,7 @@
 // runs, the pattern solve reads the template along its pixels' runs.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <cstring>
 
@@ -37,6 +38,30 @@ void forEachRun(const std::uint8_t* row, int cols, Run&& run) {
     while (c < cols && row[c]) ++c;
     run(begin, c);
   }
+}
+
+// Whether pred(row, col) holds for a marked pixel on the mask's edge (one
+// of its eight neighbours unmarked; off the mask counts as marked), the
+// mask being `rows` rows of `cols` bytes, `stride` bytes apart. Only marked
+// pixels are visited, and a pixel's neighbours only where pred holds (put
+// the cheap test in pred): an erosion of the whole mask costs more.
+template <typename Pred>
+bool anyOnMaskEdge(const std::uint8_t* mask, int rows, int cols, std::size_t stride, Pred&& pred) {
+  const auto unmarked_near = [&](int r, int c) {  // in row r, at columns c - 1 .. c + 1
+    if (r < 0 || r >= rows) return false;
+    const std::uint8_t* m = mask + static_cast<std::size_t>(r) * stride;
+    return (c > 0 && !m[c - 1]) || !m[c] || (c + 1 < cols && !m[c + 1]);
+  };
+  for (int r = 0; r < rows; ++r) {
+    bool found = false;
+    forEachRun(mask + static_cast<std::size_t>(r) * stride, cols, [&](int begin, int end) {
+      for (int c = begin; c < end && !found; ++c)
+        found = pred(r, c) && ((c == begin && c > 0) || (c + 1 == end && end < cols) || unmarked_near(r - 1, c) ||
+                               unmarked_near(r + 1, c));
+    });
+    if (found) return true;
+  }
+  return false;
 }
 
 }  // namespace dss
