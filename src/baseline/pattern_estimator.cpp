@@ -1,5 +1,6 @@
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -91,12 +92,22 @@ std::vector<cv::Mat> PatternEstimator::designImages(const std::vector<Eigen::Vec
   for (const auto& place : places_rad) images.push_back(designImage(place, pixels));
   if (!pixels) return images;
   // A design image lighting a pixel on their edge: its light may go on beyond them.
+  struct EdgeRun {
+    int row, begin, end;
+  };
+  std::vector<EdgeRun> edge;
+  forEachEdgeRun(pixels->ptr<std::uint8_t>(), pixels->rows, pixels->cols, pixels->step[0],
+                 [&](int r, int begin, int end) {
+                   edge.push_back({r, begin, end});
+                 });
   for (const cv::Mat& image : images)
-    if (anyOnMaskEdge(pixels->ptr<std::uint8_t>(), pixels->rows, pixels->cols, pixels->step[0],
-                      [&](int r, int c) { return image.at<std::uint16_t>(r, c) != unlit_code_; })) {
-      pixels.reset();
-      for (std::size_t k = 0; k < places_rad.size(); ++k) images[k] = designImage(places_rad[k], std::nullopt);
-      return images;
+    for (const EdgeRun& run : edge) {
+      const std::uint16_t* values = image.ptr<std::uint16_t>(run.row);
+      if (std::any_of(values + run.begin, values + run.end, [&](std::uint16_t v) { return v != unlit_code_; })) {
+        pixels.reset();
+        for (std::size_t k = 0; k < places_rad.size(); ++k) images[k] = designImage(places_rad[k], std::nullopt);
+        return images;
+      }
     }
   return images;
 }

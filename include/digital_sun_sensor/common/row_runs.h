@@ -2,9 +2,12 @@
 // runs, the pattern solve reads the template along its pixels' runs.
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <utility>
+#include <vector>
 
 namespace dss {
 
@@ -40,28 +43,64 @@ void forEachRun(const std::uint8_t* row, int cols, Run&& run) {
   }
 }
 
-// Whether pred(row, col) holds for a marked pixel on the mask's edge (one
-// of its eight neighbours unmarked; off the mask counts as marked), the
-// mask being `rows` rows of `cols` bytes, `stride` bytes apart. Only marked
-// pixels are visited, and a pixel's neighbours only where pred holds (put
-// the cheap test in pred): an erosion of the whole mask costs more.
-template <typename Pred>
-bool anyOnMaskEdge(const std::uint8_t* mask, int rows, int cols, std::size_t stride, Pred&& pred) {
-  const auto unmarked_near = [&](int r, int c) {  // in row r, at columns c - 1 .. c + 1
-    if (r < 0 || r >= rows) return false;
-    const std::uint8_t* m = mask + static_cast<std::size_t>(r) * stride;
-    return (c > 0 && !m[c - 1]) || !m[c] || (c + 1 < cols && !m[c + 1]);
+// Calls edge(row, begin, end) for each run [begin, end) of the mask's edge
+// pixels (marked, with one of their eight neighbours unmarked; off the mask
+// counts as marked: an erosion by a 3 x 3 square with a marked border), row
+// by row, left to right; the mask being `rows` rows of `cols` bytes,
+// `stride` bytes apart. From the rows' runs: a pixel is inside where its
+// row's runs and those of the rows above and below, each shrunk by a pixel
+// at both ends, all hold it.
+template <typename Edge>
+void forEachEdgeRun(const std::uint8_t* mask, int rows, int cols, std::size_t stride, Edge&& edge) {
+  using Runs = std::vector<std::pair<int, int>>;
+  // Row r's runs into `runs`, and each shrunk by a pixel at both ends into `inner`.
+  const auto read = [&](int r, Runs& runs, Runs& inner) {
+    runs.clear(), inner.clear();
+    if (r < 0 || r >= rows)
+      runs.emplace_back(0, cols);  // off the mask: marked
+    else
+      forEachRun(mask + static_cast<std::size_t>(r) * stride, cols, [&](int b, int e) { runs.emplace_back(b, e); });
+    for (const auto& [b, e] : runs) {
+      const int from = b == 0 ? 0 : b + 1, to = e == cols ? cols : e - 1;
+      if (from < to) inner.emplace_back(from, to);
+    }
   };
+  // x = x and y (both sorted, disjoint runs).
+  Runs scratch;
+  const auto intersect = [&scratch](Runs& x, const Runs& y) {
+    scratch.clear();
+    for (std::size_t i = 0, j = 0; i < x.size() && j < y.size();) {
+      const int from = std::max(x[i].first, y[j].first), to = std::min(x[i].second, y[j].second);
+      if (from < to) scratch.emplace_back(from, to);
+      if (x[i].second < y[j].second)
+        ++i;
+      else
+        ++j;
+    }
+    x.swap(scratch);
+  };
+  // Rows r - 1, r, r + 1 (rolling), their shrunk runs, and row r's inside.
+  Runs above, above_in, here, here_in, below, below_in, inside;
+  read(-1, above, above_in);
+  read(0, here, here_in);
   for (int r = 0; r < rows; ++r) {
-    bool found = false;
-    forEachRun(mask + static_cast<std::size_t>(r) * stride, cols, [&](int begin, int end) {
-      for (int c = begin; c < end && !found; ++c)
-        found = pred(r, c) && ((c == begin && c > 0) || (c + 1 == end && end < cols) || unmarked_near(r - 1, c) ||
-                               unmarked_near(r + 1, c));
-    });
-    if (found) return true;
+    read(r + 1, below, below_in);
+    inside = here_in;
+    intersect(inside, above_in);
+    intersect(inside, below_in);
+    // Each run of the row less the inside runs (which lie within the row's runs).
+    std::size_t k = 0;
+    for (const auto& [b, e] : here) {
+      int c = b;
+      for (; k < inside.size() && inside[k].first < e; ++k) {
+        if (c < inside[k].first) edge(r, c, inside[k].first);
+        c = inside[k].second;
+      }
+      if (c < e) edge(r, c, e);
+    }
+    above.swap(here), above_in.swap(here_in);
+    here.swap(below), here_in.swap(below_in);
   }
-  return false;
 }
 
 }  // namespace dss
