@@ -44,6 +44,7 @@ struct PatternSolver::Level {
   double centre_u = 0.0, centre_v = 0.0;  // cell whose centre is the template's
   cv::Mat values;                         // CV_64F rows x cols
   cv::Mat integral;                       // CV_64F (rows + 1) x (cols + 1)
+  cv::Mat mirrored;                       // values, each row right to left (the global search reads it so)
 
   // Sum over template cells [u0, u1) x [v0, v1), clipped to the template.
   double sum(int u0, int v0, int u1, int v1) const {
@@ -111,6 +112,7 @@ PatternSolver::PatternSolver(const SensorConfig& config, PatternSolveOptions opt
         l.values.at<double>(v, u) = s / (factor * factor);
       }
     cv::integral(l.values, l.integral, CV_64F);
+    cv::flip(l.values, l.mirrored, 1);
     levels_.push_back(std::move(l));
   }
 }
@@ -268,7 +270,31 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const 
     const cv::Mat& sums = px.block_sums[level];
     const int u0 = first_cell[level][0], v0 = first_cell[level][1];
     scores.assign(static_cast<std::size_t>(nu * nv), 0.0);
-    for (int r = 0; r < sums.rows; ++r)
+    if (level == 0) {
+      // The global search, every shift of the field: each block that holds
+      // light adds its sum times the template cells it meets along a row of
+      // shifts, u0 + c - (u_lo + i) for shift i (right to left: the mirrored
+      // row read left to right). Its dot products per row of blocks and
+      // shift cost more in loop than in products (thesis_ca: 2401 shifts,
+      // a quarter of the blocks lit).
+      for (int r = 0; r < sums.rows; ++r) {
+        const double* image_row = sums.ptr<double>(r);
+        for (int c = 0; c < sums.cols; ++c) {
+          const double light = image_row[c];
+          if (light == 0.0) continue;
+          const int cell = u0 + c - u_lo;  // the template column met at shift i: cell - i
+          const int i_from = std::max(0, cell - l.cols + 1), i_to = std::min(nu, cell + 1);
+          for (int j = 0; j < nv; ++j) {
+            const int tv = v0 + r - (v_lo + j);
+            if (tv < 0 || tv >= l.rows) continue;
+            const double* mirrored = l.mirrored.ptr<double>(tv) + (l.cols - 1 - cell);  // [i]: column cell - i
+            double* row_scores = &scores[static_cast<std::size_t>(j * nu)];
+            for (int i = i_from; i < i_to; ++i) row_scores[i] += light * mirrored[i];
+          }
+        }
+      }
+    }
+    for (int r = 0; r < sums.rows && level > 0; ++r)
       for (int j = 0; j < nv; ++j) {
         const int tv = v0 + r - (v_lo + j);
         if (tv < 0 || tv >= l.rows) continue;
