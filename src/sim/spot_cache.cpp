@@ -256,10 +256,9 @@ SpotCache::Blend SpotCache::lookup(const ApertureGeometry& aperture, const Eigen
 
 namespace {
 
-// The largest of non-negative values (0 for none). Eight running maxima,
-// which the compiler keeps in vector registers: one chain through every
-// value waited a compare's latency per value (the order does not change a
-// maximum).
+// The largest of non-negative values (0 for none). Eight independent
+// running maxima: one chain through every value waited a compare's
+// latency per value (the order does not change a maximum).
 float peakOf(const std::vector<float>& values) {
   constexpr std::size_t kLanes = 8;
   std::array<float, kLanes> lane{};
