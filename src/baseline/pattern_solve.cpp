@@ -293,23 +293,26 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const 
           }
         }
       }
-    }
-    for (int r = 0; r < sums.rows && level > 0; ++r)
-      for (int j = 0; j < nv; ++j) {
-        const int tv = v0 + r - (v_lo + j);
-        if (tv < 0 || tv >= l.rows) continue;
-        const double* image_row = sums.ptr<double>(r);
-        const double* template_row = l.values.ptr<double>(tv);
-        for (int i = 0; i < nu; ++i) {
-          // Template cell u - shift_u must lie in [0, cols).
-          const int shift_u = u_lo + i;
-          const int u_from = std::max(u0, shift_u), u_to = std::min(u0 + sums.cols, shift_u + l.cols);
-          if (u_to <= u_from) continue;
-          scores[static_cast<std::size_t>(j * nu + i)] +=
-              Eigen::Map<const Eigen::VectorXd>(image_row + (u_from - u0), u_to - u_from)
-                  .dot(Eigen::Map<const Eigen::VectorXd>(template_row + (u_from - shift_u), u_to - u_from));
+    } else {
+      // The local searches, 9 or 49 shifts: a dot product per row of blocks
+      // and shift (scattered as above, the search took longer).
+      for (int r = 0; r < sums.rows; ++r)
+        for (int j = 0; j < nv; ++j) {
+          const int tv = v0 + r - (v_lo + j);
+          if (tv < 0 || tv >= l.rows) continue;
+          const double* image_row = sums.ptr<double>(r);
+          const double* template_row = l.values.ptr<double>(tv);
+          for (int i = 0; i < nu; ++i) {
+            // Template cell u - shift_u must lie in [0, cols).
+            const int shift_u = u_lo + i;
+            const int u_from = std::max(u0, shift_u), u_to = std::min(u0 + sums.cols, shift_u + l.cols);
+            if (u_to <= u_from) continue;
+            scores[static_cast<std::size_t>(j * nu + i)] +=
+                Eigen::Map<const Eigen::VectorXd>(image_row + (u_from - u0), u_to - u_from)
+                    .dot(Eigen::Map<const Eigen::VectorXd>(template_row + (u_from - shift_u), u_to - u_from));
+          }
         }
-      }
+    }
     for (int j = 0; j < nv; ++j)
       for (int i = 0; i < nu; ++i) {
         const int w0 = window_cell[level][0] - (u_lo + i), h0 = window_cell[level][1] - (v_lo + j);
