@@ -129,10 +129,7 @@ class SplatSpot {
     const Footprint f = footprintOf(blend, cx_um, cy_um, pitch_um, half_w, half_h_);
     c0 = std::max(0, f.c0), c1 = std::min(w - 1, f.c1);
     r0 = std::max(0, f.r0), r1 = std::min(h - 1, f.r1);
-    if (c1 < c0)
-      r1 = r0 - 1;  // lights nothing
-    else
-      reader_.emplace(blend, c0, c1, cx_um, half_w, pitch_um);
+    if (c0 <= c1) reader_.emplace(blend, c0, c1, cx_um, half_w, pitch_um);
   }
 
   // Adds the spot to image row r (in [r0, r1]) on columns [begin, end); acc
@@ -143,7 +140,7 @@ class SplatSpot {
     for (int i = from; i < to; ++i) row[c0 + i] += static_cast<float>(scale_ * acc[i]);
   }
 
-  int c0, c1, r0, r1;  // the image's columns and rows it can light (r1 < r0: none)
+  int c0, c1, r0, r1;  // the image's columns and rows it can light (c1 < c0 or r1 < r0: none)
 
  private:
   double half_h_, pitch_um_, cy_um_, scale_;
@@ -220,7 +217,7 @@ void addSpots(cv::Mat& image, const std::vector<SpotToAdd>& spots, double pitch_
     if (first[j] != j) offset[j] = {static_cast<int>(whole.x()), static_cast<int>(whole.y())};
     ++members[first[j]];
   }
-  // Each spot's rows and columns on the image and what adds it.
+  // Each spot that lights the image: its rows and columns there and what adds it.
   struct Placed {
     int r0, r1, c0, c1;
     const PixelSpot* pixel;  // else splat
@@ -239,8 +236,10 @@ void addSpots(cv::Mat& image, const std::vector<SpotToAdd>& spots, double pitch_
       splats[j] = std::make_unique<SplatSpot>(*s.blend, s.centre_um.x(), s.centre_um.y(), s.scale, pitch_um, image.cols,
                                               image.rows);
       const SplatSpot& spot = *splats[j];
-      placed.push_back({spot.r0, spot.r1, spot.c0, spot.c1, nullptr, &spot, 0, 0});
-      widest = std::max(widest, static_cast<std::size_t>(std::max(0, spot.c1 - spot.c0 + 1)));
+      if (spot.c0 <= spot.c1 && spot.r0 <= spot.r1) {
+        placed.push_back({spot.r0, spot.r1, spot.c0, spot.c1, nullptr, &spot, 0, 0});
+        widest = std::max(widest, static_cast<std::size_t>(spot.c1 - spot.c0 + 1));
+      }
       continue;
     }
     if (!resampled[f])
@@ -248,8 +247,15 @@ void addSpots(cv::Mat& image, const std::vector<SpotToAdd>& spots, double pitch_
                                                  spots[f].scale, pitch_um, image.cols, image.rows);
     const Footprint& at = resampled[f]->at;
     const int dc = offset[j][0], dr = offset[j][1];
-    placed.push_back({std::max(0, at.r0 + dr), std::min(image.rows - 1, at.r1 + dr), std::max(0, at.c0 + dc),
-                      std::min(image.cols - 1, at.c1 + dc), resampled[f].get(), nullptr, dc, dr});
+    const Placed p{std::max(0, at.r0 + dr),
+                   std::min(image.rows - 1, at.r1 + dr),
+                   std::max(0, at.c0 + dc),
+                   std::min(image.cols - 1, at.c1 + dc),
+                   resampled[f].get(),
+                   nullptr,
+                   dc,
+                   dr};
+    if (p.c0 <= p.c1 && p.r0 <= p.r1) placed.push_back(p);
   }
   // Row by row, every spot on it in order (each pixel sums the spots in
   // the order given): the row stays in cache while the spots add to it;
@@ -262,7 +268,7 @@ void addSpots(cv::Mat& image, const std::vector<SpotToAdd>& spots, double pitch_
     if (runs.empty()) continue;
     float* row = image.ptr<float>(r);
     for (const Placed& p : placed) {
-      if (r < p.r0 || r > p.r1 || p.c1 < p.c0) continue;
+      if (r < p.r0 || r > p.r1) continue;
       for (const auto& [begin, end] : runs) {
         if (p.pixel)
           p.pixel->addToRow(row, r, p.dc, p.dr, begin, end, p.c0, p.c1);

@@ -121,7 +121,7 @@ std::size_t SpotCache::dropOverLimit(const SpotCache* adder, const std::string& 
   std::size_t dropped_bytes = 0;
   if (limit == 0 || memory_held_bytes <= limit) return 0;  // every map added below the limit: no lock taken
   std::lock_guard<std::mutex> registry(caches_mutex);
-  while (limit > 0 && memory_held_bytes > limit) {
+  while (memory_held_bytes > limit) {
     // The cache whose droppable map was used longest ago (one cache's
     // mutex at a time: never two, so no order between them to keep).
     SpotCache* oldest = nullptr;
@@ -308,8 +308,8 @@ SpotMap SpotCache::Blend::composed() const {
                   maps[k]->rows == out.rows;
   if (one_lattice) {
     // One pass, each sample summed in the same order as below (0 + w0 m0 is
-    // w0 m0 exactly): the zero fill and a read and write of the output per
-    // map there were three times the memory traffic.
+    // w0 m0 exactly): below, the output is read and written once per map,
+    // three times the memory traffic.
     out.values.resize(static_cast<std::size_t>(out.rows) * out.cols);
     std::array<const float*, 4> from{};
     for (int k = 0; k < count; ++k) from[k] = maps[k]->values.data();
