@@ -10,6 +10,7 @@
 
 #include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/common/vector_clones.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
@@ -232,6 +233,7 @@ struct Peak {
 
 }  // namespace
 
+DSS_VECTOR_CLONES
 std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const std::optional<AngleWindow>& window,
                                                     const RunnerUpChoice& choose) const {
   thread_local Pixels buffers;  // allocated once per thread, refilled per image
@@ -449,6 +451,7 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const 
   return std::nullopt;
 }
 
+DSS_VECTOR_CLONES
 std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vector2d angles, int stride, int iterations,
                                                   std::optional<double> start_gain) const {
   const auto step_by = static_cast<std::size_t>(std::max(stride, 1));

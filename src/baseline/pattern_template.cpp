@@ -9,6 +9,7 @@
 #include "digital_sun_sensor/common/cubic_weights.h"
 #include "digital_sun_sensor/common/limits.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/common/vector_clones.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
@@ -92,6 +93,7 @@ PatternTemplate::Shifted PatternTemplate::shifted(int detector_width_px, int det
   return s;
 }
 
+DSS_VECTOR_CLONES
 void PatternTemplate::Shifted::run(int col, int row, int count, double* value, double* grad_x, double* grad_y) const {
   const int iu = col + base_u_, iv = row + base_v_;
   const int side = pattern_->side_px_;
@@ -114,6 +116,7 @@ void PatternTemplate::Shifted::run(int col, int row, int count, double* value, d
   }
 }
 
+DSS_VECTOR_CLONES
 void PatternTemplate::Shifted::run(int col, int row, int count, double* value) const {
   const int iu = col + base_u_, iv = row + base_v_;
   const int side = pattern_->side_px_;

@@ -15,6 +15,7 @@
 
 #include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/common/vector_clones.h"
 #include "digital_sun_sensor/sim/geometry.h"
 #include "digital_sun_sensor/sim/optics.h"
 #include "digital_sun_sensor/sim/readout.h"
@@ -198,6 +199,7 @@ struct SpotToAdd {
 // Adds the spots in order. Spots of one blend and scale whose centres lie
 // whole pixels apart (the same sub-pixel phase to 1e-9 px) are resampled
 // once (PixelSpot).
+DSS_VECTOR_CLONES
 void addSpots(cv::Mat& image, const std::vector<SpotToAdd>& spots, double pitch_um, const RowRuns* only) {
   constexpr double kSamePhasePx = 1e-9;
   // Per spot: the first spot of its phase group, and its offset from it [px].

@@ -15,6 +15,7 @@
 #endif
 
 #include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/common/vector_clones.h"
 #include "digital_sun_sensor/sim/geometry.h"
 
 namespace dss {
@@ -259,6 +260,7 @@ namespace {
 // The largest of non-negative values (0 for none). Eight independent
 // running maxima: one chain through every value waited a compare's
 // latency per value (the order does not change a maximum).
+DSS_VECTOR_CLONES
 float peakOf(const std::vector<float>& values) {
   constexpr std::size_t kLanes = 8;
   std::array<float, kLanes> lane{};
@@ -286,6 +288,7 @@ void weightedSum(const std::array<const float*, 4>& from, const std::array<float
 
 }  // namespace
 
+DSS_VECTOR_CLONES
 SpotMap SpotCache::Blend::composed() const {
   SpotMap out;
   if (count == 0) return out;
