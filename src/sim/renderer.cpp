@@ -172,11 +172,15 @@ struct PixelSpot {
     }
   }
 
-  // Adds the spot moved by (dc, dr) pixels to image row r on columns
-  // [begin, end) clipped to [c0, c1] (its columns moved there, clipped to the image).
-  void addToRow(float* row, int r, int dc, int dr, int begin, int end, int c0, int c1) const {
+  // Adds the spot moved by (dc, dr) pixels to image row r on each of the
+  // row's runs [begin, end) (left to right) clipped to [c0, c1] (its columns
+  // moved there, clipped to the image).
+  void addToRow(float* row, int r, int dc, int dr, const std::vector<std::pair<int, int>>& runs, int c0, int c1) const {
     const float* in = &values[static_cast<std::size_t>(r - dr - at.r0) * (at.c1 - at.c0 + 1)] - (at.c0 + dc);
-    for (int c = std::max(begin, c0), c_end = std::min(end, c1 + 1); c < c_end; ++c) row[c] += in[c];
+    for (const auto& [begin, end] : runs) {
+      if (begin > c1) return;
+      for (int c = std::max(begin, c0), c_end = std::min(end, c1 + 1); c < c_end; ++c) row[c] += in[c];
+    }
   }
 };
 
@@ -271,12 +275,11 @@ void addSpots(cv::Mat& image, const std::vector<SpotToAdd>& spots, double pitch_
     float* row = image.ptr<float>(r);
     for (const Placed& p : placed) {
       if (r < p.r0 || r > p.r1) continue;
-      for (const auto& [begin, end] : runs) {
-        if (p.pixel)
-          p.pixel->addToRow(row, r, p.dc, p.dr, begin, end, p.c0, p.c1);
-        else
-          p.splat->addToRow(row, r, begin, end, acc.data());
+      if (p.pixel) {
+        p.pixel->addToRow(row, r, p.dc, p.dr, runs, p.c0, p.c1);
+        continue;
       }
+      for (const auto& [begin, end] : runs) p.splat->addToRow(row, r, begin, end, acc.data());
     }
   }
 }
