@@ -98,7 +98,6 @@ SpotMap toSpotMap(const ComplexGrid& grid, double scale, const OpticalPath& path
   }
   // Power: the map holds per-pixel power sampled every step; a pixel covers pitch^2.
   map.total_power_um2 = total * (path.step_um * path.step_um) / (path.pitch_um * path.pitch_um);
-  map.peak = peak;
   int r0 = 0, r1 = n - 1, c0 = 0, c1 = n - 1;
   if (crop && peak > 0.0f) {
     const float floor = peak * 1e-6f;

@@ -257,23 +257,6 @@ SpotCache::Blend SpotCache::lookup(const ApertureGeometry& aperture, const Eigen
 
 namespace {
 
-// The largest of non-negative values (0 for none). Eight independent
-// running maxima: one chain through every value waited a compare's
-// latency per value (the order does not change a maximum).
-DSS_VECTOR_CLONES
-float peakOf(const std::vector<float>& values) {
-  constexpr std::size_t kLanes = 8;
-  std::array<float, kLanes> lane{};
-  const std::size_t n = values.size(), whole = n - n % kLanes;
-  const float* v = values.data();
-  for (std::size_t i = 0; i < whole; i += kLanes)
-    for (std::size_t l = 0; l < kLanes; ++l) lane[l] = v[i + l] > lane[l] ? v[i + l] : lane[l];
-  for (std::size_t i = whole; i < n; ++i) lane[0] = v[i] > lane[0] ? v[i] : lane[0];
-  float peak = 0.0f;
-  for (const float m : lane) peak = m > peak ? m : peak;
-  return peak;
-}
-
 // to[i] = sum over k < N of weights[k] from[k][i], summed in order of k
 // (N a constant: the loop over i vectorises).
 template <int N>
@@ -331,7 +314,6 @@ SpotMap SpotCache::Blend::composed() const {
         break;
     }
     for (int k = 0; k < count; ++k) out.total_power_um2 += weights[k] * maps[k]->total_power_um2;
-    out.peak = peakOf(out.values);
     return out;
   }
   out.values.assign(static_cast<std::size_t>(out.rows) * out.cols, 0.0f);
@@ -345,7 +327,6 @@ SpotMap SpotCache::Blend::composed() const {
     }
     out.total_power_um2 += weights[k] * m.total_power_um2;
   }
-  out.peak = peakOf(out.values);
   return out;
 }
 

@@ -67,7 +67,6 @@ struct SpotMap {
   double v0_um = 0.0;
   std::vector<float> values;
   double total_power_um2 = 0.0;  // power reaching the detector plane (whole window)
-  float peak = 0.0f;
 
   // Bilinear lookup; zero outside.
   float sample(double u_um, double v_um) const;
