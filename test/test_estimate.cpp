@@ -103,7 +103,9 @@ TEST(Screen, SmallGroupsAreOpenCvsEightConnectedComponents) {
         }
       EXPECT_EQ(cv::countNonZero(removeSmallSpots(image, 0.0, 0.0, min_px) != expected), 0)
           << "density " << density << ", min_px " << min_px;
-      if (density == 0.2) EXPECT_GT(removed, 0);
+      if (density == 0.2) {
+        EXPECT_GT(removed, 0);
+      }
     }
   }
 }

@@ -6,9 +6,12 @@
 #include <gtest/gtest.h>
 
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
+#include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/model/model.h"
 #include "digital_sun_sensor/model/sparse_input.h"
 #include "digital_sun_sensor/sim/dataset_generator.h"
+#include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/renderer.h"
 #include "digital_sun_sensor/train/training_set.h"
 
 namespace dss {
@@ -85,6 +88,39 @@ TEST(PatternHead, MergedSpotsGetItAndItAnswersAsThePatternEstimator) {
   const auto predicted = model.predict(images);
   for (std::size_t i = 0; i < images.size(); ++i) EXPECT_EQ(counts[i], predicted[i].active_sites) << i;
   EXPECT_GT(counts[0], inputSpecFor(config).max_sites);
+}
+
+// A constant sigma (what calibrate-sigma fits where the solve's own has
+// the wrong shape) still grows with the light the design does not hold,
+// as the pattern estimator's own does.
+TEST(PatternHead, ConstantSigmaGrowsWithLightTheDesignLacks) {
+  const SensorConfig config = shipped("thesis_ca");
+  Model model = createModel(config, archPreset("resnet10_w16", config.numSubFovClasses()), 3);
+  ASSERT_TRUE(model.meta.arch.pattern_head);
+  const double sigma_alpha = 2e-6, sigma_beta = 3e-6;
+  model.setConstantSigma(sigma_alpha, sigma_beta);
+  model.net->eval();
+  SensorConfig ghostly = config;
+  ghostly.anomalies.ghost_probability = 1.0;
+  const Eigen::Vector3d sun = sunVectorFromAngles(degToRad(1.5), degToRad(-1.0));
+  const std::vector<cv::Mat> images = {Renderer(SensorInstance::draw(config, 7)).render(sun, 2, nullptr),
+                                       Renderer(SensorInstance::draw(ghostly, 7)).render(sun, 2, nullptr)};
+  PatternEstimatorOptions options;
+  options.sigma_images = 0;
+  const auto expected = PatternEstimator(config, options).estimate(images);
+  const auto predicted = model.predict(images);
+  for (std::size_t i = 0; i < images.size(); ++i) {
+    ASSERT_TRUE(expected[i].valid && predicted[i].declined.empty()) << i << ": " << expected[i].status;
+    const double inflation = PatternEstimator::varianceInflation(expected[i].unexplained_light_z);
+    EXPECT_NEAR(predicted[i].alpha_variance_rad2, sigma_alpha * sigma_alpha * inflation,
+                1e-5 * sigma_alpha * sigma_alpha * inflation)
+        << i;
+    EXPECT_NEAR(predicted[i].beta_variance_rad2, sigma_beta * sigma_beta * inflation,
+                1e-5 * sigma_beta * sigma_beta * inflation)
+        << i;
+  }
+  EXPECT_LT(expected[0].unexplained_light_z, PatternEstimator::kExcessNoiseZ);  // no ghost: the constant
+  EXPECT_GT(PatternEstimator::varianceInflation(expected[1].unexplained_light_z), 2.5);
 }
 
 TEST(PatternHead, NeedsAnOnChipThreshold) {

@@ -320,6 +320,32 @@ TEST_F(PatternSolveTest, AnswerIsDeclinedWhereLightTheDesignLacksRemains) {
   EXPECT_EQ(status::statusCode(declined.status), status::kModelMismatch) << declined.status;
 }
 
+// A ghost whose excess stays below the decline still biases the answer
+// beyond the solve's sigma: the answer's variance grows with the excess.
+TEST_F(PatternSolveTest, AnswerHoldingSomeLightTheDesignLacksHasItsVarianceGrown) {
+  const PatternEstimator estimator(*config_, kNoSigmaImages);
+  const auto [clean, ghosted] = withAndWithoutGhost(Eigen::Vector2d(degToRad(1.5), degToRad(-1.0)), 2);
+  const SunEstimate e = estimator.estimateOne(ghosted);
+  ASSERT_TRUE(e.valid) << e.status;
+  EXPECT_GT(e.unexplained_light_z, PatternEstimator::kExcessNoiseZ + 0.5);
+  EXPECT_LE(e.unexplained_light_z, AliasEvidence::kMaxUnexplainedZ);
+  // The solve's own answer (its alias decided for its best fit), the variance times the excess's inflation.
+  const auto solved = solver_->solve(ghosted);
+  ASSERT_TRUE(solved);
+  EXPECT_EQ(e.alpha_rad, solved->angles_rad.x());
+  const double inflation = PatternEstimator::varianceInflation(e.unexplained_light_z);
+  EXPECT_GT(inflation, 2.5);
+  EXPECT_NEAR(e.covariance[0] / solved->covariance(0, 0), inflation, 1e-9 * inflation);
+  EXPECT_NEAR(e.covariance[3] / solved->covariance(1, 1), inflation, 1e-9 * inflation);
+}
+
+TEST(PatternEstimatorSigma, VarianceGrowsWithTheExcessAboveItsNoise) {
+  EXPECT_EQ(PatternEstimator::varianceInflation(-3.0), 1.0);
+  EXPECT_EQ(PatternEstimator::varianceInflation(PatternEstimator::kExcessNoiseZ), 1.0);
+  EXPECT_DOUBLE_EQ(PatternEstimator::varianceInflation(PatternEstimator::kExcessNoiseZ + 2.0),
+                   1.0 + 2.0 * PatternEstimator::kVariancePerExcess);
+}
+
 // The solve's sigma takes the residual as independent pixel noise; on the
 // design's own noisy images the errors are larger than that (the
 // template's error is correlated over the pattern): the scale measured at

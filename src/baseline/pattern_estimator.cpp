@@ -296,8 +296,11 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   }
   est.alpha_rad = solution->angles_rad.x();
   est.beta_rad = solution->angles_rad.y();
+  // The answer's place's excess (its decision measured it, else one render).
+  const double unexplained_z = evidence ? evidence->unexplained_z : unexplainedLightZ(image, solution->angles_rad);
+  est.unexplained_light_z = unexplained_z;
   const Eigen::Matrix2d scale = Eigen::Vector2d(sigma_scale_[0], sigma_scale_[1]).asDiagonal();
-  const Eigen::Matrix2d cov = scale * solution->covariance * scale;
+  const Eigen::Matrix2d cov = scale * solution->covariance * scale * varianceInflation(unexplained_z);
   est.covariance = {cov(0, 0), cov(0, 1), cov(1, 0), cov(1, 1)};
   est.subfov_class = subFovClassOf(config_.subfov, geometry_, est.alpha_rad, est.beta_rad);
   if (ambiguous) {
@@ -317,7 +320,6 @@ SunEstimate PatternEstimator::estimateOne(const cv::Mat& image, const std::optio
   // the solve by more than its sigma says: on thesis_ca's ghost images an
   // excess above 5 held 27 % of the errors within 1 sigma; on nominal ones
   // it stayed below 3.
-  const double unexplained_z = evidence ? evidence->unexplained_z : unexplainedLightZ(image, solution->angles_rad);
   if (unexplained_z > AliasEvidence::kMaxUnexplainedZ) {
     char figure[32];
     std::snprintf(figure, sizeof figure, "%.1f", unexplained_z);

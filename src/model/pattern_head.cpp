@@ -54,8 +54,10 @@ SscnnOutput SscnnNetImpl::patternForward(const std::vector<cv::Mat>& images, con
   const double scale = arch_.angle_scale_rad;
   torch::Tensor angles = torch::zeros({batch, 2}, torch::kDouble);
   torch::Tensor solve_log_variance = torch::zeros({batch, 2}, torch::kDouble);
+  torch::Tensor log_inflation = torch::zeros({batch, 1}, torch::kDouble);
   torch::Tensor classes = torch::zeros({batch}, torch::kLong);
   auto a = angles.accessor<double, 2>(), v = solve_log_variance.accessor<double, 2>();
+  auto inflate = log_inflation.accessor<double, 2>();
   auto c = classes.accessor<std::int64_t, 1>();
   SscnnOutput out;
   out.declined.resize(static_cast<std::size_t>(batch));
@@ -77,15 +79,21 @@ SscnnOutput SscnnNetImpl::patternForward(const std::vector<cv::Mat>& images, con
     a[b][1] = e.beta_rad / scale;
     v[b][0] = std::log(e.covariance[0] / (scale * scale));
     v[b][1] = std::log(e.covariance[3] / (scale * scale));
+    inflate[b][0] = std::log(PatternEstimator::varianceInflation(e.unexplained_light_z));
   }
   out.angles = angles.to(dtype);
   out.class_logits = torch::zeros({batch, arch_.num_classes}, torch::TensorOptions().dtype(dtype));
   out.resolved_class = classes;
   // The variance head as for the geometric head: its weights on the
   // solve's log variance (identity as created), none on features here.
+  // Then the inflation for light the design does not hold, whatever the
+  // head's calibration (a constant sigma zeroes its weights).
   const std::int64_t features = variance_->weight.size(1) - 2;
-  out.log_variance = variance_->forward(torch::cat(
-      {torch::zeros({batch, features}, torch::TensorOptions().dtype(dtype)), solve_log_variance.to(dtype)}, 1));
+  out.log_variance =
+      variance_->forward(torch::cat({torch::zeros({batch, features}, torch::TensorOptions().dtype(dtype)),
+                                     (solve_log_variance - log_inflation).to(dtype)},
+                                    1)) +
+      log_inflation.to(dtype);
   return out;
 }
 

@@ -24,6 +24,10 @@ struct SunEstimate {
   // over its calibrated level (Prediction::spot_mismatch; ~1 on the sensor
   // it was calibrated for); 0 where not measured.
   double spot_mismatch = 0.0;
+  // Pattern estimator: the image's chi^2 excess over the design's image at
+  // the answer (AliasEvidence::unexplained_z: light the design does not
+  // hold); 0 where not measured.
+  double unexplained_light_z = 0.0;
   // The part of the covariance's diagonal that every estimate of the model
   // shares, as a sigma per axis [rad]: its geometry's uncertainty (a unit
   // calibration's, or a family model's unit tolerances). What is left is
