@@ -77,9 +77,11 @@ SscnnOutput SscnnNetImpl::patternForward(const std::vector<cv::Mat>& images, con
     }
     a[b][0] = e.alpha_rad / scale;
     a[b][1] = e.beta_rad / scale;
-    v[b][0] = std::log(e.covariance[0] / (scale * scale));
-    v[b][1] = std::log(e.covariance[3] / (scale * scale));
+    // The solve's own variance to the variance head; its inflation for
+    // light the design does not hold apart, added after it.
     inflate[b][0] = std::log(PatternEstimator::varianceInflation(e.unexplained_light_z));
+    v[b][0] = std::log(e.covariance[0] / (scale * scale)) - inflate[b][0];
+    v[b][1] = std::log(e.covariance[3] / (scale * scale)) - inflate[b][0];
   }
   out.angles = angles.to(dtype);
   out.class_logits = torch::zeros({batch, arch_.num_classes}, torch::TensorOptions().dtype(dtype));
@@ -90,9 +92,8 @@ SscnnOutput SscnnNetImpl::patternForward(const std::vector<cv::Mat>& images, con
   // head's calibration (a constant sigma zeroes its weights).
   const std::int64_t features = variance_->weight.size(1) - 2;
   out.log_variance =
-      variance_->forward(torch::cat({torch::zeros({batch, features}, torch::TensorOptions().dtype(dtype)),
-                                     (solve_log_variance - log_inflation).to(dtype)},
-                                    1)) +
+      variance_->forward(torch::cat(
+          {torch::zeros({batch, features}, torch::TensorOptions().dtype(dtype)), solve_log_variance.to(dtype)}, 1)) +
       log_inflation.to(dtype);
   return out;
 }
