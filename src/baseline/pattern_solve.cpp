@@ -31,6 +31,7 @@ struct PatternSolver::Pixels {
     std::size_t first;
   };
   std::vector<Run> runs;
+  int widest_run = 0;
   std::vector<double> values;
   double total = 0.0;
   std::vector<cv::Mat> block_sums;  // per level, CV_64F, ceil(rows / factor) x ceil(cols / factor)
@@ -190,7 +191,8 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
   cv::Mat near;
   const int band = 2 * options_.dark_band_px + 1;
   cv::dilate(lit, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(band, band)));
-  px.lit.clear(), px.dark.clear(), px.runs.clear(), px.values.clear();
+  px.runs.clear();
+  px.widest_run = 0;
   // Finest level first: each coarser one sums the finer one's blocks.
   px.block_sums.resize(levels_.size());
   for (std::size_t l = levels_.size(); l-- > 0;) {
@@ -205,7 +207,8 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
       blockSums<std::uint16_t, std::uint32_t>(image, f, sums);
   }
   // Sized first and filled through pointers: a push_back per pixel cost
-  // more than the rest of this function.
+  // more than the rest of this function. Every element is written below:
+  // not cleared first, a resize writes zeros only where the last image had fewer.
   const auto lit_count = static_cast<std::size_t>(cv::countNonZero(lit));
   const auto near_count = static_cast<std::size_t>(cv::countNonZero(near));  // holds every lit pixel
   px.values.resize(near_count);
@@ -220,6 +223,7 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
   for (int r = 0; r < image.rows; ++r)
     forEachRun(near.ptr<std::uint8_t>(r), image.cols, [&](int begin, int end) {
       px.runs.push_back({begin, r, end - begin, k});
+      px.widest_run = std::max(px.widest_run, end - begin);
       for (int i = begin; i < end; ++i) {
         const double v = eight_bit ? image.ptr<std::uint8_t>(r)[i] : image.ptr<std::uint16_t>(r)[i];
         value[k++] = v;
@@ -466,7 +470,13 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
                                                   std::optional<double> start_gain) const {
   const auto step_by = static_cast<std::size_t>(std::max(stride, 1));
   const PatternTemplate& p = *template_;
-  thread_local std::vector<double> t, gx, gy;  // the template along a pixel run (stride 1)
+  // The template along a pixel run (stride 1), sized once for the widest:
+  // resized per run, each longer run than the last had zeros written first.
+  thread_local std::vector<double> t, gx, gy;
+  if (t.size() < static_cast<std::size_t>(px.widest_run)) {
+    t.resize(static_cast<std::size_t>(px.widest_run));
+    gx.resize(t.size()), gy.resize(t.size());
+  }
   // The gain that best explains the lit pixels at the start's shift.
   double gain = start_gain.value_or(0.0);
   if (!start_gain) {
@@ -477,7 +487,6 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     if (step_by == 1) {
       for (const auto& run : px.runs) {
         const auto n = static_cast<std::size_t>(run.count);
-        t.resize(n);
         shifted.run(run.col, run.row, run.count, t.data());
         const double* q = &px.values[run.first];
         for (std::size_t i = 0; i < n; ++i)
@@ -531,7 +540,6 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
     if (step_by == 1) {
       for (const auto& run : px.runs) {
         const auto n = static_cast<std::size_t>(run.count);
-        t.resize(n), gx.resize(n), gy.resize(n);
         shifted.run(run.col, run.row, run.count, t.data(), gx.data(), gy.data());
         const double* q = &px.values[run.first];
         for (std::size_t i = 0; i < n; ++i) add(q[i], q[i] > 0.0, t[i], gx[i], gy[i]);

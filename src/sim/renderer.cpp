@@ -392,7 +392,11 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
       shape.drawn = blend;
       if (shape.apertures > 1 && blend.count > 1) {
         shape.drawn = SpotCache::Blend{};
-        shape.drawn.maps[0] = std::make_shared<const SpotMap>(blend.composed());
+        // Into this thread's map of the last image where no blend holds it still.
+        thread_local std::shared_ptr<SpotMap> composed;
+        if (!composed || composed.use_count() > 1) composed = std::make_shared<SpotMap>();
+        blend.composeInto(*composed);
+        shape.drawn.maps[0] = composed;
         shape.drawn.weights[0] = 1.0f;
         shape.drawn.count = 1;
       }
@@ -544,6 +548,14 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
     const int unlit_code = static_cast<int>(
         std::clamp(std::floor(dark_e * gain + n.black_level_dn + 0.5), 0.0, static_cast<double>(max_code)));
     if (!noise) out.setTo(lut[unlit_code]);
+    // Codes 0 .. top_unlit all read as the unlit one (under an on-chip
+    // threshold, most of the scale): light that rounds to one of them reads
+    // so too, and is not converted (thesis_ca's design images: pixels below
+    // 90 % of the peak).
+    int top_unlit = -1;
+    while (top_unlit < max_code && lut[top_unlit + 1] == lut[unlit_code]) ++top_unlit;
+    const double unlit_below_e =
+        top_unlit >= unlit_code ? ((top_unlit + 0.5 - n.black_level_dn) / gain - dark_e) * (1.0 - 1e-9) : 0.0;
     const bool eight_bit = out.depth() == CV_8U;
     // The code of e electrons. floor() of a non-negative value is its
     // truncation (exact; floor is a library call without SSE4.1, and this
@@ -567,10 +579,11 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
       };
       if (!noise) {
         // Only the pixels that hold light (of `only`, where given, as no
-        // other does) differ from the unlit code.
+        // other does) and read above the unlit code's run differ from it.
         auto lit = [&](int begin, int end) {
           for (int col = begin; col < end; ++col)
-            if (in[col] != 0.0f) write(col, codeOf(std::min(in[col] + dark_e, n.full_well_e)));
+            if (in[col] != 0.0f && !(in[col] < unlit_below_e))
+              write(col, codeOf(std::min(in[col] + dark_e, n.full_well_e)));
         };
         if (options.only)
           forEachRun(options.only->ptr<std::uint8_t>(r), w, lit);

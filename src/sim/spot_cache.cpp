@@ -271,10 +271,21 @@ void weightedSum(const std::array<const float*, 4>& from, const std::array<float
 
 }  // namespace
 
-DSS_VECTOR_CLONES
 SpotMap SpotCache::Blend::composed() const {
   SpotMap out;
-  if (count == 0) return out;
+  composeInto(out);
+  return out;
+}
+
+DSS_VECTOR_CLONES
+void SpotCache::Blend::composeInto(SpotMap& out) const {
+  std::vector<float> storage = std::move(out.values);
+  out = SpotMap{};
+  out.values = std::move(storage);
+  if (count == 0) {
+    out.values.clear();
+    return;
+  }
   const double step = maps[0]->step_um;
   double u_lo = maps[0]->u0_um, v_lo = maps[0]->v0_um;
   for (int k = 1; k < count; ++k) u_lo = std::min(u_lo, maps[k]->u0_um), v_lo = std::min(v_lo, maps[k]->v0_um);
@@ -295,7 +306,8 @@ SpotMap SpotCache::Blend::composed() const {
   if (one_lattice) {
     // One pass, each sample summed in the same order as below (0 + w0 m0 is
     // w0 m0 exactly): below, the output is read and written once per map,
-    // three times the memory traffic.
+    // three times the memory traffic. Every sample is written: the storage
+    // kept from `out` is not zeroed first.
     out.values.resize(static_cast<std::size_t>(out.rows) * out.cols);
     std::array<const float*, 4> from{};
     for (int k = 0; k < count; ++k) from[k] = maps[k]->values.data();
@@ -314,7 +326,7 @@ SpotMap SpotCache::Blend::composed() const {
         break;
     }
     for (int k = 0; k < count; ++k) out.total_power_um2 += weights[k] * maps[k]->total_power_um2;
-    return out;
+    return;
   }
   out.values.assign(static_cast<std::size_t>(out.rows) * out.cols, 0.0f);
   for (int k = 0; k < count; ++k) {
@@ -327,7 +339,6 @@ SpotMap SpotCache::Blend::composed() const {
     }
     out.total_power_um2 += weights[k] * m.total_power_um2;
   }
-  return out;
 }
 
 }  // namespace dss

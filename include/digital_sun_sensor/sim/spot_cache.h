@@ -47,6 +47,9 @@ class SpotCache {
     // interpolation being linear, for a quarter of the lookups when one
     // blend serves many apertures of the same shape.
     SpotMap composed() const;
+    // The same into `out`, whose sample storage it reuses (a render composes
+    // a blend per image: a fresh map's zeroed megabyte each time).
+    void composeInto(SpotMap& out) const;
   };
 
   // Maps around the incidence direction `sun_mask` (unit, mask frame), with
