@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
@@ -239,6 +240,11 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
 }
 
 namespace {
+
+// Four doubles and a comparison's mask of them (GCC's vector extension:
+// AVX in the fits' AVX2 clone, two SSE2 halves otherwise).
+using Lanes = double __attribute__((vector_size(32)));
+using LaneMask = long long __attribute__((vector_size(32)));
 
 struct Peak {
   double score;
@@ -538,12 +544,41 @@ std::optional<PatternSolution> PatternSolver::fit(const Pixels& px, Eigen::Vecto
       ++used;
     };
     if (step_by == 1) {
+      // add()'s terms, four pixels at a time in four lanes of sums (the
+      // pass on every pixel is most of the fits' work; a pixel add() skips
+      // adds zeros), the runs' last few through add() itself. The sums'
+      // order differs: on 2700 thesis_ca images the same statuses and
+      // estimates to the CSV's ten digits, 3 sigmas moved in the tenth.
+      const Lanes zero = {0.0, 0.0, 0.0, 0.0}, one = {1.0, 1.0, 1.0, 1.0};
+      Lanes l00 = zero, l01 = zero, l02 = zero, l11 = zero, l12 = zero, l22 = zero;
+      Lanes lg0 = zero, lg1 = zero, lg2 = zero, lsse = zero, lused = zero;
       for (const auto& run : px.runs) {
         const auto n = static_cast<std::size_t>(run.count);
         shifted.run(run.col, run.row, run.count, t.data(), gx.data(), gy.data());
         const double* q = &px.values[run.first];
-        for (std::size_t i = 0; i < n; ++i) add(q[i], q[i] > 0.0, t[i], gx[i], gy[i]);
+        std::size_t i = 0;
+        for (; i + 4 <= n; i += 4) {
+          Lanes qv, tv, gxv, gyv;
+          std::memcpy(&qv, q + i, sizeof qv), std::memcpy(&tv, &t[i], sizeof tv);
+          std::memcpy(&gxv, &gx[i], sizeof gxv), std::memcpy(&gyv, &gy[i], sizeof gyv);
+          const Lanes predicted = gain * tv - offset_;
+          const LaneMask lit = qv > zero;
+          const LaneMask use = lit ? ~((qv >= top_) & (predicted >= top_)) : predicted > floor_;
+          const Lanes residual = use ? (lit ? qv : zero + floor_) - predicted : zero;
+          const Lanes ja = use ? -gain * (dd(0, 0) * gxv + dd(1, 0) * gyv) : zero;
+          const Lanes jb = use ? -gain * (dd(0, 1) * gxv + dd(1, 1) * gyv) : zero;
+          const Lanes tu = use ? tv : zero;
+          l00 += ja * ja, l01 += ja * jb, l02 += ja * tu, l11 += jb * jb, l12 += jb * tu, l22 += tu * tu;
+          lg0 += ja * residual, lg1 += jb * residual, lg2 += tu * residual;
+          lsse += residual * residual;
+          lused += use ? one : zero;
+        }
+        for (; i < n; ++i) add(q[i], q[i] > 0.0, t[i], gx[i], gy[i]);
       }
+      const auto total = [](const Lanes& v) { return (v[0] + v[1]) + (v[2] + v[3]); };
+      n00 += total(l00), n01 += total(l01), n02 += total(l02), n11 += total(l11), n12 += total(l12);
+      n22 += total(l22), g0 += total(lg0), g1 += total(lg1), g2 += total(lg2), sse += total(lsse);
+      used += static_cast<int>(total(lused));
     } else {
       auto visit = [&](const Pixels::Pixel& q, bool lit) {
         // Most dark pixels are censored: their value alone decides.
