@@ -10,6 +10,7 @@
 #include <cmath>
 #include <utility>
 
+#include "digital_sun_sensor/baseline/design_canvases.h"
 #include "digital_sun_sensor/baseline/pattern_estimator.h"
 #include "digital_sun_sensor/baseline/pattern_solve.h"
 #include "digital_sun_sensor/common/estimate_status.h"
@@ -269,6 +270,54 @@ TEST_F(PatternSolveTest, AliasChoiceIsDeclinedWhereLightTheDesignLacksCouldTipIt
   EXPECT_EQ(status::statusCode(e.status), status::kAmbiguousAperture);
   EXPECT_NE(e.status.find("light the design does not hold"), std::string::npos) << e.status;
   EXPECT_TRUE(estimator.estimateOne(clean).valid);
+}
+
+// The design's images from its canvases (one wide render per node of the
+// diffraction cache, read at the image's shift and blended in angle) are the
+// rendered ones but for the last ADC step of a few pixels; a decision and an
+// excess from them lie within a fraction of the margins that let them stand
+// for rendered ones, and the answers are the same.
+TEST_F(PatternSolveTest, DesignCanvasesStandInForRenderedDesignImages) {
+  const DesignCanvases canvases(*renderer_, PatternEstimator::kFieldMarginDeg);
+  // One ADC code through the threshold's rescaling, in delivered codes.
+  const double code_step =
+      std::ceil(config_->maxCode() / ((1.0 - config_->threshold.level_fraction) * config_->maxCode()));
+  for (const auto& angles : {Eigen::Vector2d(-3.0, 1.0), Eigen::Vector2d(0.02, 2.0), Eigen::Vector2d(3.6, -4.3)}) {
+    cv::Mat rendered;
+    noiseFree(*renderer_, angles.x(), angles.y()).convertTo(rendered, CV_16U);
+    const auto from_canvases = canvases.image(Eigen::Vector2d(degToRad(angles.x()), degToRad(angles.y())), nullptr);
+    ASSERT_TRUE(from_canvases);
+    cv::Mat differ, difference;
+    cv::absdiff(rendered, *from_canvases, difference);
+    double largest = 0.0;
+    cv::minMaxLoc(difference, nullptr, &largest);
+    EXPECT_LE(largest, code_step) << angles.transpose();
+    EXPECT_LT(cv::countNonZero(difference), 0.02 * cv::countNonZero(rendered)) << angles.transpose();
+  }
+  EXPECT_FALSE(canvases.image(Eigen::Vector2d(degToRad(10.0), 0.0), nullptr));  // beyond the field
+
+  PatternEstimatorOptions rendered_only = kNoSigmaImages;
+  rendered_only.design_canvases = false;
+  const PatternEstimator with(*config_, kNoSigmaImages), without(*config_, rendered_only);
+  const Renderer unit(SensorInstance::draw(*config_, 7));
+  for (const auto& angles : {Eigen::Vector2d(-3.0, 1.0), Eigen::Vector2d(2.1, -2.6), Eigen::Vector2d(-1.4, 3.3)}) {
+    const Eigen::Vector2d truth(degToRad(angles.x()), degToRad(angles.y()));
+    const cv::Mat image = unit.render(sunVectorFromAngles(truth.x(), truth.y()), 3, nullptr);
+    const auto s = solver_->solve(image);
+    ASSERT_TRUE(s);
+    ASSERT_LT(s->alternative_cost_ratio, PatternEstimator::kAmbiguousCostRatio) << angles.transpose();
+    const Eigen::Vector2d alias = (s->angles_rad - truth).norm() < 1e-3 ? s->alternative_rad : s->angles_rad;
+    const AliasEvidence a = with.aliasEvidence(image, truth, alias), b = without.aliasEvidence(image, truth, alias);
+    EXPECT_NEAR(a.z, b.z, 0.5 * PatternEstimator::kCanvasZMargin) << angles.transpose();
+    EXPECT_NEAR(a.unexplained_z, b.unexplained_z,
+                0.5 * (PatternEstimator::kExcessNoiseZ - PatternEstimator::kCanvasMaxUnexplainedZ))
+        << angles.transpose();
+    const SunEstimate e = with.estimateOne(image), f = without.estimateOne(image);
+    ASSERT_TRUE(e.valid && f.valid) << e.status << " / " << f.status;
+    EXPECT_EQ(e.alpha_rad, f.alpha_rad);
+    EXPECT_EQ(e.beta_rad, f.beta_rad);
+    EXPECT_EQ(e.covariance, f.covariance);
+  }
 }
 
 // Where the pattern's two places are mirror images of each other (alpha

@@ -23,6 +23,7 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
       input_(inputSpecFor(config)),
       solver_(config),
       design_(SensorInstance::nominalOf(config)),
+      canvases_(options.design_canvases ? std::make_unique<DesignCanvases>(design_, kFieldMarginDeg) : nullptr),
       noise_(config, config.exposure.exposure_s),
       geometry_(MaskGeometry::nominalOf(config)) {
   const Eigen::Vector2d half(degToRad(config.fov.alpha_max_deg + kFieldMarginDeg),
@@ -90,26 +91,29 @@ std::vector<cv::Mat> PatternEstimator::designImages(const std::vector<Eigen::Vec
                                                     std::optional<cv::Mat>& pixels) const {
   std::vector<cv::Mat> images;
   for (const auto& place : places_rad) images.push_back(designImage(place, pixels));
-  if (!pixels) return images;
+  if (pixels && lightsEdge(images, *pixels)) {
+    pixels.reset();
+    for (std::size_t k = 0; k < places_rad.size(); ++k) images[k] = designImage(places_rad[k], std::nullopt);
+  }
+  return images;
+}
+
+bool PatternEstimator::lightsEdge(const std::vector<cv::Mat>& images, const cv::Mat& pixels) const {
   // A design image lighting a pixel on their edge: its light may go on beyond them.
   struct EdgeRun {
     int row, begin, end;
   };
   std::vector<EdgeRun> edge;
-  forEachEdgeRun(pixels->ptr<std::uint8_t>(), pixels->rows, pixels->cols, pixels->step[0],
-                 [&](int r, int begin, int end) {
-                   edge.push_back({r, begin, end});
-                 });
+  forEachEdgeRun(pixels.ptr<std::uint8_t>(), pixels.rows, pixels.cols, pixels.step[0], [&](int r, int begin, int end) {
+    edge.push_back({r, begin, end});
+  });
   for (const cv::Mat& image : images)
     for (const EdgeRun& run : edge) {
       const std::uint16_t* values = image.ptr<std::uint16_t>(run.row);
-      if (std::any_of(values + run.begin, values + run.end, [&](std::uint16_t v) { return v != unlit_code_; })) {
-        pixels.reset();
-        for (std::size_t k = 0; k < places_rad.size(); ++k) images[k] = designImage(places_rad[k], std::nullopt);
-        return images;
-      }
+      if (std::any_of(values + run.begin, values + run.end, [&](std::uint16_t v) { return v != unlit_code_; }))
+        return true;
     }
-  return images;
+  return false;
 }
 
 namespace {
@@ -172,16 +176,17 @@ double PatternEstimator::unexplainedLightZ(const cv::Mat& observed, const cv::Ma
 
 double PatternEstimator::unexplainedLightZ(const cv::Mat& image, const Eigen::Vector2d& angles_rad) const {
   std::optional<cv::Mat> pixels = designPixels(image, {angles_rad});
+  const cv::Mat observed = codesOf(image);
+  if (const auto quick = canvasImages({angles_rad}, pixels)) {
+    const double z = unexplainedLightZ(observed, (*quick)[0], pixels);
+    if (z <= kCanvasMaxUnexplainedZ) return z;
+  }
   const cv::Mat expected = designImages({angles_rad}, pixels)[0];
-  return unexplainedLightZ(codesOf(image), expected, pixels);
+  return unexplainedLightZ(observed, expected, pixels);
 }
 
-AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen::Vector2d& here_rad,
-                                              const Eigen::Vector2d& there_rad) const {
-  std::optional<cv::Mat> pixels = designPixels(image, {here_rad, there_rad});
-  const std::vector<cv::Mat> designs = designImages({here_rad, there_rad}, pixels);
-  const cv::Mat &here = designs[0], &there = designs[1];
-  const cv::Mat observed = codesOf(image);
+AliasEvidence PatternEstimator::evidenceOf(const cv::Mat& observed, const cv::Mat& here, const cv::Mat& there,
+                                           const std::optional<cv::Mat>& pixels) const {
   // The log-likelihood ratio of the two places under Gaussian pixel noise
   // (sum of (I - T)^2 / v - (I - H)^2 / v) and its variance under either,
   // 4 sum (H - T)^2 / v; off the rendered pixels both read the unlit code.
@@ -203,6 +208,34 @@ AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen:
   if (log_ratio_variance > 0.0) e.z = log_ratio / std::sqrt(log_ratio_variance);
   e.unexplained_z = unexplainedLightZ(observed, e.z >= 0.0 ? here : there, pixels);
   return e;
+}
+
+std::optional<std::vector<cv::Mat>> PatternEstimator::canvasImages(const std::vector<Eigen::Vector2d>& places_rad,
+                                                                   const std::optional<cv::Mat>& pixels) const {
+  if (!canvases_) return std::nullopt;
+  std::vector<cv::Mat> images;
+  for (const auto& place : places_rad) {
+    std::optional<cv::Mat> image = canvases_->image(place, pixels ? &*pixels : nullptr);
+    if (!image) return std::nullopt;
+    images.push_back(std::move(*image));
+  }
+  if (pixels && lightsEdge(images, *pixels)) return std::nullopt;
+  return images;
+}
+
+AliasEvidence PatternEstimator::aliasEvidence(const cv::Mat& image, const Eigen::Vector2d& here_rad,
+                                              const Eigen::Vector2d& there_rad) const {
+  std::optional<cv::Mat> pixels = designPixels(image, {here_rad, there_rad});
+  const cv::Mat observed = codesOf(image);
+  // The canvases' images decide where they do so by margins that cover
+  // their difference from rendered ones: the decision, and the variance
+  // inflation of 1, that rendered images would give.
+  if (const auto quick = canvasImages({here_rad, there_rad}, pixels)) {
+    const AliasEvidence e = evidenceOf(observed, (*quick)[0], (*quick)[1], pixels);
+    if (std::abs(e.z) >= AliasEvidence::kMinZ + kCanvasZMargin && e.unexplained_z <= kCanvasMaxUnexplainedZ) return e;
+  }
+  const std::vector<cv::Mat> designs = designImages({here_rad, there_rad}, pixels);
+  return evidenceOf(observed, designs[0], designs[1], pixels);
 }
 
 AngleWindow PatternEstimator::quadrantWindow(int quadrant) const {

@@ -334,7 +334,7 @@ void Renderer::warmUp(int threads, const std::function<void(std::size_t, std::si
 double Renderer::darkElectronsPerSecond() const { return instance_.config.noise.darkCurrentAtTemperatureEPerS(); }
 
 cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* truth, Rng* anomaly_rng,
-                                    const cv::Mat* only) const {
+                                    const cv::Mat* only, const Eigen::Vector3d* shape_sun) const {
   const SensorConfig& c = instance_.config;
   const int w = c.detector.width_px, h = c.detector.height_px;
   const double pitch = c.detector.pitch_um;
@@ -356,6 +356,8 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
   const RowRuns* lit_runs = runs ? &*runs : nullptr;
   cv::Mat rate(h, w, CV_32F, cv::Scalar(0));  // optical photoelectrons per second
   const Eigen::Vector3d sun_mask = instance_.mask_rotation.transpose() * sun;
+  const Eigen::Vector3d shape_mask =
+      shape_sun ? Eigen::Vector3d(instance_.mask_rotation.transpose() * shape_sun->normalized()) : sun_mask;
   // Each aperture's own height decides where its light crosses the glass
   // (a tilted mask: some above the window, some lower in it); the spot's
   // shape comes from the unit's path at the mask centre.
@@ -387,7 +389,7 @@ cv::Mat Renderer::expectedElectrons(const Eigen::Vector3d& sun_in, ImageTruth* t
     }
     ShapeSpot& shape = shapes.at(shape_keys_[i]);
     if (shape.drawn.count == 0) {  // the shape's first aperture on the detector
-      const SpotCache::Blend blend = cache_->lookup(geometry, sun_mask);
+      const SpotCache::Blend blend = cache_->lookup(geometry, shape_mask);
       for (int k = 0; k < blend.count; ++k) shape.power_um2 += blend.weights[k] * blend.maps[k]->total_power_um2;
       shape.drawn = blend;
       if (shape.apertures > 1 && blend.count > 1) {

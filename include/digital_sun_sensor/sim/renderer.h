@@ -59,8 +59,10 @@ class Renderer {
   // Mean signal photoelectrons per pixel (CV_32F) for a sun vector in the
   // sensor frame, after exposure control; fills `truth`. Per-image anomalies
   // are drawn from `anomaly_rng` when given; `only` as RenderOptions::only.
+  // With `shape_sun`, the spots lie where `sun` puts them but are shaped as
+  // for that direction (baseline/design_canvases.h).
   cv::Mat expectedElectrons(const Eigen::Vector3d& sun, ImageTruth* truth, Rng* anomaly_rng = nullptr,
-                            const cv::Mat* only = nullptr) const;
+                            const cv::Mat* only = nullptr, const Eigen::Vector3d* shape_sun = nullptr) const;
 
   // Detector: electrons (CV_32F) -> digital numbers (CV_8U for <= 8 bits, else CV_16U).
   cv::Mat detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, const RenderOptions& options = {}) const;
