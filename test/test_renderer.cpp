@@ -15,6 +15,7 @@
 #include "digital_sun_sensor/sim/dataset_generator.h"
 #include "digital_sun_sensor/sim/field_coverage.h"
 #include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/readout.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
@@ -360,6 +361,37 @@ TEST(Sampling, SpreadPlanCoversTheFieldForEveryCount) {
   EXPECT_THROW(measureFieldCoverage(c, {0.0}, {}, 3), std::invalid_argument);
   EXPECT_EQ(parseSamplingMode("spread"), SamplingMode::kSpread);
   EXPECT_EQ(toString(SamplingMode::kSpread), "spread");
+}
+
+// The noise-free readout gives the detector's own codes (what the pattern
+// estimator's design canvases convert their light with), through thesis_ca's
+// rescaling threshold and without a threshold: every electron count of a
+// ramp past the full well, and the unlit code below unlitBelowE.
+TEST(NoiseFreeReadout, GivesTheDetectorsNoiseFreeCodes) {
+  for (const char* name : {"thesis_ca", "thesis_sa"}) {
+    const SensorConfig config = shipped(name);
+    const Renderer renderer(SensorInstance::nominalOf(config));
+    const NoiseFreeReadout readout(config, true);
+    const int n = 4000;
+    cv::Mat electrons(1, n, CV_32F);
+    for (int i = 0; i < n; ++i) electrons.at<float>(0, i) = static_cast<float>(1.2 * config.noise.full_well_e * i / n);
+    RenderOptions options;
+    options.noise = false;
+    Rng unused(1);
+    cv::Mat codes;
+    renderer.detect(electrons, 1e-3, unused, options).convertTo(codes, CV_32S);
+    const double below = readout.unlitBelowE(0.0);
+    int unlit = 0;
+    for (int i = 0; i < n; ++i) {
+      const float e = electrons.at<float>(0, i);
+      const int expected =
+          e < below ? readout.unlitCode(0.0) : readout.code(std::min<double>(e, config.noise.full_well_e));
+      ASSERT_EQ(codes.at<int>(0, i), expected) << name << " at " << e << " e";
+      unlit += codes.at<int>(0, i) == readout.unlitCode(0.0);
+    }
+    EXPECT_GT(unlit, 0) << name;
+    EXPECT_EQ(readout.code(1.5 * config.noise.full_well_e), config.maxCode()) << name;  // clipped by the ADC
+  }
 }
 
 }  // namespace

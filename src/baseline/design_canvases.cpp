@@ -5,14 +5,15 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <stdexcept>
 #include <thread>
 
 #include "digital_sun_sensor/common/cubic_weights.h"
-#include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/common/vector_clones.h"
 #include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/readout.h"
 #include "digital_sun_sensor/sim/spot_cache.h"
 
 namespace dss {
@@ -119,6 +120,7 @@ DesignCanvases::DesignCanvases(const Renderer& design, double margin_deg) : desi
   wide.detector.width_px += 2 * margin_px_;
   wide.detector.height_px += 2 * margin_px_;
   wide_ = std::make_unique<Renderer>(SensorInstance::nominalOf(wide));
+  readout_ = std::make_unique<NoiseFreeReadout>(c, true);
   const std::size_t nodes = static_cast<std::size_t>(2 * nodes_x_ + 1) * (2 * nodes_y_ + 1);
   canvases_.resize(nodes);
   built_ = std::vector<std::once_flag>(nodes);
@@ -160,10 +162,15 @@ const DesignCanvases::Canvas& DesignCanvases::canvas(int ix, int iy) const {
       }
       place -= jacobian.lu().solve(miss);
     }
+    auto canvas = std::make_unique<Canvas>();
+    const Eigen::Vector2d miss = driftUm(sunVectorFromAngles(place.x(), place.y())) / pitch - target;
+    if (!(miss.cwiseAbs().maxCoeff() < 1e-6)) {  // no such direction found: images there are rendered
+      canvases_[index] = std::move(canvas);
+      return;
+    }
     ImageTruth truth;
     const cv::Mat electrons =
         wide_->expectedElectrons(sunVectorFromAngles(place.x(), place.y()), &truth, nullptr, nullptr, &shape);
-    auto canvas = std::make_unique<Canvas>();
     canvas->rate = truth.exposure_s > 0.0 ? cv::Mat(electrons / truth.exposure_s) : electrons;
     canvas->drift_x_px = static_cast<int>(target.x());
     canvas->drift_y_px = static_cast<int>(target.y());
@@ -189,9 +196,17 @@ void DesignCanvases::warmUp(int threads) const {
 
 std::size_t DesignCanvases::bytesHeld() const { return bytes_; }
 
+std::size_t DesignCanvases::bytesWhole() const {
+  const SensorConfig& c = wide_->config();
+  return canvases_.size() * static_cast<std::size_t>(c.detector.width_px) * c.detector.height_px * sizeof(float);
+}
+
 std::optional<cv::Mat> DesignCanvases::image(const Eigen::Vector2d& angles_rad, const cv::Mat* only) const {
   const SensorConfig& c = design_.config();
   const int w = c.detector.width_px, h = c.detector.height_px;
+  if (only && (only->rows != h || only->cols != w || only->type() != CV_8U))
+    throw std::invalid_argument(
+        "design canvases: the mask of pixels to light is not a CV_8U image of the detector's size");
   const Eigen::Vector3d sun = sunVectorFromAngles(angles_rad.x(), angles_rad.y());
   // The nodes and their weights as SpotCache::lookup blends them.
   std::array<std::pair<int, int>, 4> node{};
@@ -231,6 +246,7 @@ std::optional<cv::Mat> DesignCanvases::image(const Eigen::Vector2d& angles_rad, 
   std::array<int, 4> base_u{}, base_v{};  // canvas k's column and row of the blend's (0, 0)
   for (int k = 0; k < count; ++k) {
     const Canvas& canvas = this->canvas(node[k].first, node[k].second);
+    if (canvas.rate.empty()) return std::nullopt;
     canvases[k] = &canvas;
     blend_weights[k] = static_cast<float>(weight[k]);
     base_u[k] = static_cast<int>(fu) - 1 + canvas.drift_x_px;
@@ -288,18 +304,20 @@ std::optional<cv::Mat> DesignCanvases::image(const Eigen::Vector2d& angles_rad, 
   double exposure_s = c.exposure.exposure_s;
   if (c.exposure.mode == ExposureMode::kAuto && peak_rate > 0.0f)
     exposure_s = c.exposure.peak_fraction_of_full_well * c.noise.full_well_e / peak_rate;
+  // Codes as Renderer::detect's without noise (no dark electrons): the
+  // marked pixels' light through the readout, every other pixel unlit.
   const auto scale = static_cast<float>(exposure_s);
+  const double unlit_below_e = readout_->unlitBelowE(0.0), full_well_e = c.noise.full_well_e;
+  cv::Mat codes(h, w, CV_16U, cv::Scalar(readout_->unlitCode(0.0)));
   for (const Run& run : runs) {
-    float* row = rate.ptr<float>(run.row);
-    for (int col = run.begin; col < run.end; ++col) row[col] *= scale;
+    const float* in = rate.ptr<float>(run.row);
+    std::uint16_t* out = codes.ptr<std::uint16_t>(run.row);
+    for (int col = run.begin; col < run.end; ++col) {
+      const float e = in[col] * scale;
+      if (e != 0.0f && !(e < unlit_below_e))
+        out[col] = static_cast<std::uint16_t>(readout_->code(std::min<double>(e, full_well_e)));
+    }
   }
-  RenderOptions options;
-  options.noise = false;
-  options.anomalies = false;
-  options.only = only;
-  Rng unused_rng(1);
-  cv::Mat codes = design_.detect(rate, exposure_s, unused_rng, options);
-  if (codes.depth() != CV_16U) codes.convertTo(codes, CV_16U);
   return codes;
 }
 

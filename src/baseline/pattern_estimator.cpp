@@ -23,12 +23,15 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
       input_(inputSpecFor(config)),
       solver_(config),
       design_(SensorInstance::nominalOf(config)),
-      canvases_(options.design_canvases ? std::make_unique<DesignCanvases>(design_, kFieldMarginDeg) : nullptr),
       noise_(config, config.exposure.exposure_s),
       geometry_(MaskGeometry::nominalOf(config)) {
   const Eigen::Vector2d half(degToRad(config.fov.alpha_max_deg + kFieldMarginDeg),
                              degToRad(config.fov.beta_max_deg + kFieldMarginDeg));
   field_ = {-half, half};
+  if (options.design_canvases) {
+    canvases_ = std::make_unique<DesignCanvases>(design_, kFieldMarginDeg);
+    if (canvases_->bytesWhole() > kMaxDesignCanvasBytes) canvases_.reset();  // a wide field: every image rendered
+  }
   // The design's pixels read as lit from this share of its brightest on
   // (auto exposure under an on-chip threshold; else each decision renders
   // the whole detector).

@@ -72,4 +72,36 @@ int ReadoutTable::sampleZeroException(Rng& rng) const {
   return codeFor(0, u < below ? u : mode_cdf + (u - below) + 1e-300);
 }
 
+NoiseFreeReadout::NoiseFreeReadout(const SensorConfig& config, bool threshold)
+    : max_code_(config.maxCode()),
+      gain_(config.maxCode() / config.noise.adc_full_scale_e),
+      black_dn_(config.noise.black_level_dn) {
+  // On-chip thresholding through a lookup table over codes.
+  table_.resize(static_cast<std::size_t>(max_code_) + 1);
+  const bool on = threshold && config.threshold.enabled;
+  const double level = config.threshold.level_fraction * max_code_;
+  for (int d = 0; d <= max_code_; ++d) {
+    table_[d] = d;
+    if (!on) continue;
+    if (d < level) {
+      table_[d] = 0;
+    } else if (config.threshold.rescale) {
+      table_[d] = static_cast<int>(std::floor((d - level) / (max_code_ - level) * max_code_ + 0.5));
+    }
+  }
+}
+
+int NoiseFreeReadout::unlitCode(double dark_e) const {
+  return table_[static_cast<std::size_t>(
+      std::clamp(std::floor(dark_e * gain_ + black_dn_ + 0.5), 0.0, static_cast<double>(max_code_)))];
+}
+
+double NoiseFreeReadout::unlitBelowE(double dark_e) const {
+  const int unlit_dn =
+      static_cast<int>(std::clamp(std::floor(dark_e * gain_ + black_dn_ + 0.5), 0.0, static_cast<double>(max_code_)));
+  int top_unlit = -1;
+  while (top_unlit < max_code_ && table_[top_unlit + 1] == table_[unlit_dn]) ++top_unlit;
+  return top_unlit >= unlit_dn ? ((top_unlit + 0.5 - black_dn_) / gain_ - dark_e) * (1.0 - 1e-9) : 0.0;
+}
+
 }  // namespace dss

@@ -470,8 +470,6 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
   const auto& n = c.noise;
   const int w = signal_e.cols, h = signal_e.rows;
   const int n_px = w * h;
-  const int max_code = c.maxCode();
-  const double gain = max_code / n.adc_full_scale_e;  // DN per electron
   const bool noise = options.noise;
   const double dark_e = noise ? darkElectronsPerSecond() * exposure_s : 0.0;
   const bool prnu = noise && !instance_.prnu_gain.empty();
@@ -479,19 +477,8 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
   // Per-thread scratch: rendering runs on several threads, each image reuses it.
   thread_local std::vector<int> codes, electrons, touched;
 
-  // On-chip thresholding through a lookup table over codes.
-  std::vector<int> lut(max_code + 1);
-  const bool threshold = options.threshold && c.threshold.enabled;
-  const double level = c.threshold.level_fraction * max_code;
-  for (int d = 0; d <= max_code; ++d) {
-    lut[d] = d;
-    if (!threshold) continue;
-    if (d < level) {
-      lut[d] = 0;
-    } else if (c.threshold.rescale) {
-      lut[d] = static_cast<int>(std::floor((d - level) / (max_code - level) * max_code + 0.5));
-    }
-  }
+  const NoiseFreeReadout noise_free(c, options.threshold);
+  const std::vector<int>& lut = noise_free.table();  // the on-chip threshold's, over ADC codes
   cv::Mat out(h, w, n.bit_depth <= 8 ? CV_8U : CV_16U);
 
   if (noise && n.shot_noise) {
@@ -547,27 +534,12 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
   } else {
     // Mean image (noise off) or no shot noise: direct evaluation, written
     // through the table as it goes; without noise, one value for the unlit pixels.
-    const int unlit_code = static_cast<int>(
-        std::clamp(std::floor(dark_e * gain + n.black_level_dn + 0.5), 0.0, static_cast<double>(max_code)));
-    if (!noise) out.setTo(lut[unlit_code]);
-    // Codes 0 .. top_unlit all read as the unlit one (under an on-chip
-    // threshold, most of the scale): light that rounds to one of them reads
-    // so too, and is not converted (thesis_ca's design images: pixels below
-    // 90 % of the peak).
-    int top_unlit = -1;
-    while (top_unlit < max_code && lut[top_unlit + 1] == lut[unlit_code]) ++top_unlit;
-    const double unlit_below_e =
-        top_unlit >= unlit_code ? ((top_unlit + 0.5 - n.black_level_dn) / gain - dark_e) * (1.0 - 1e-9) : 0.0;
+    if (!noise) out.setTo(noise_free.unlitCode(dark_e));
+    // Light that rounds to one of the ADC codes the threshold maps onto the
+    // unlit code reads so too, and is not converted (thesis_ca's design
+    // images: pixels below 90 % of the peak).
+    const double unlit_below_e = noise_free.unlitBelowE(dark_e);
     const bool eight_bit = out.depth() == CV_8U;
-    // The code of e electrons. floor() of a non-negative value is its
-    // truncation (exact; floor is a library call without SSE4.1, and this
-    // runs per lit pixel).
-    auto codeOf = [&](double e) {
-      const double half_up = e * gain + n.black_level_dn + 0.5;
-      const double dn = half_up >= 0.0 && half_up < 2e9 ? static_cast<double>(static_cast<std::int64_t>(half_up))
-                                                        : std::floor(half_up);
-      return lut[static_cast<int>(std::clamp(dn, 0.0, static_cast<double>(max_code)))];
-    };
     for (int r = 0; r < h; ++r) {
       const float* in = signal_e.ptr<float>(r);
       // Row pointers taken once: an 8-bit store may alias the Mat's own fields.
@@ -585,7 +557,7 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
         auto lit = [&](int begin, int end) {
           for (int col = begin; col < end; ++col)
             if (in[col] != 0.0f && !(in[col] < unlit_below_e))
-              write(col, codeOf(std::min(in[col] + dark_e, n.full_well_e)));
+              write(col, noise_free.code(std::min(in[col] + dark_e, n.full_well_e)));
         };
         if (options.only)
           forEachRun(options.only->ptr<std::uint8_t>(r), w, lit);
@@ -599,7 +571,7 @@ cv::Mat Renderer::detect(const cv::Mat& signal_e, double exposure_s, Rng& rng, c
                    (dsnu ? dark_e * instance_.dark_scale[idx] : dark_e);
         e = std::min(e, n.full_well_e);
         if (n.read_noise_e > 0.0) e += n.read_noise_e * rng.normal();
-        write(col, codeOf(e));
+        write(col, noise_free.code(e));
       }
     }
     return out;

@@ -27,10 +27,12 @@
 
 namespace dss {
 
+class NoiseFreeReadout;
+
 class DesignCanvases {
  public:
   // For the nominal design of `design` (a flat mask: every aperture drifts
-  // alike), its field of view plus `margin_deg`.
+  // alike; `design` outlives this), its field of view plus `margin_deg`.
   DesignCanvases(const Renderer& design, double margin_deg);
   ~DesignCanvases();
   DesignCanvases(const DesignCanvases&) = delete;
@@ -39,12 +41,13 @@ class DesignCanvases {
   // The design's noise-free image (codes, CV_16U) at these angles, lit only
   // on the pixels `only` marks (CV_8U; nullptr: all), the exposure following
   // its brightest marked pixel as Renderer's; nullopt where a canvas does
-  // not reach (outside the field plus the margin).
+  // not reach (outside the field plus the margin) or was not made.
   std::optional<cv::Mat> image(const Eigen::Vector2d& angles_rad, const cv::Mat* only) const;
 
   // Renders every node's canvas on `threads` threads (else each on first use).
   void warmUp(int threads) const;
   std::size_t bytesHeld() const;
+  std::size_t bytesWhole() const;  // once every node's canvas is built
 
  private:
   struct Canvas;
@@ -53,7 +56,8 @@ class DesignCanvases {
 
   const Renderer& design_;
   std::unique_ptr<Renderer> wide_;  // the design on a detector `margin_px_` wider on each side
-  double step_rad_ = 0.0;           // the cache's node step (0: far field, one node)
+  std::unique_ptr<NoiseFreeReadout> readout_;
+  double step_rad_ = 0.0;  // the cache's node step (0: far field, one node)
   int margin_px_ = 0;
   int nodes_x_ = 0, nodes_y_ = 0;  // nodes -nodes_x_ .. nodes_x_ (and y)
   mutable std::vector<std::unique_ptr<Canvas>> canvases_;

@@ -91,6 +91,8 @@ class PatternEstimator : public SunEstimator {
   // field), their rendered z 5.37 or more and their excess 1.56 or less.
   static constexpr double kCanvasZMargin = 1.5;
   static constexpr double kCanvasMaxUnexplainedZ = 1.6;
+  // Canvases that would hold more than this are not made (thesis_ca's: 195 MB).
+  static constexpr std::size_t kMaxDesignCanvasBytes = std::size_t{512} << 20;
 
   explicit PatternEstimator(const SensorConfig& config, const PatternEstimatorOptions& options = {});
 

@@ -8,10 +8,12 @@
 // at a fraction of the cost.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
 #include "digital_sun_sensor/common/random.h"
 #include "digital_sun_sensor/sim/sensor_config.h"
-
-#include <vector>
 
 namespace dss {
 
@@ -30,12 +32,44 @@ class ReadoutTable {
  private:
   int codeFor(int n, double u) const;
 
-  std::vector<int> first_code_;    // per n
-  std::vector<int> cdf_offset_;    // per n, into cdf_
-  std::vector<int> cdf_length_;    // per n
+  std::vector<int> first_code_;  // per n
+  std::vector<int> cdf_offset_;  // per n, into cdf_
+  std::vector<int> cdf_length_;  // per n
   std::vector<double> cdf_;
   int zero_mode_ = 0;
   double zero_exception_ = 0.0;
+};
+
+// The detector's readout without noise (RenderOptions::noise off, or no
+// shot noise): a pixel's code for its electrons, through the on-chip
+// threshold's table when `threshold` (and the config enables it).
+class NoiseFreeReadout {
+ public:
+  NoiseFreeReadout(const SensorConfig& config, bool threshold);
+
+  // The delivered code of `electrons` (dark ones and any read noise
+  // included; the full well's clip is the caller's). floor() of the
+  // non-negative value is its truncation (exact; floor is a library call
+  // without SSE4.1, and this runs per lit pixel).
+  int code(double electrons) const {
+    const double half_up = electrons * gain_ + black_dn_ + 0.5;
+    const double dn =
+        half_up >= 0.0 && half_up < 2e9 ? static_cast<double>(static_cast<long long>(half_up)) : std::floor(half_up);
+    return table_[static_cast<std::size_t>(std::clamp(dn, 0.0, static_cast<double>(max_code_)))];
+  }
+  // The code of a pixel holding `dark_e` alone; the signal below which a
+  // pixel reads it too (the ADC codes that the threshold maps onto it: under
+  // thesis_ca's 90 % threshold, most of the scale), 0 where none does.
+  int unlitCode(double dark_e) const;
+  double unlitBelowE(double dark_e) const;
+  // The threshold's table over ADC codes (the identity without one).
+  const std::vector<int>& table() const { return table_; }
+
+ private:
+  std::vector<int> table_;
+  int max_code_ = 0;
+  double gain_ = 0.0;  // DN per electron
+  double black_dn_ = 0.0;
 };
 
 }  // namespace dss
