@@ -208,29 +208,11 @@ std::optional<cv::Mat> DesignCanvases::image(const Eigen::Vector2d& angles_rad, 
     throw std::invalid_argument(
         "design canvases: the mask of pixels to light is not a CV_8U image of the detector's size");
   const Eigen::Vector3d sun = sunVectorFromAngles(angles_rad.x(), angles_rad.y());
-  // The nodes and their weights as SpotCache::lookup blends them.
-  std::array<std::pair<int, int>, 4> node{};
-  std::array<double, 4> weight{};
-  int count = 0;
-  if (step_rad_ == 0.0) {
-    node[0] = {0, 0};
-    weight[0] = static_cast<float>(sun.normalized().z());
-    count = 1;
-  } else {
-    const SunAnglesRad a = anglesFromSunVector(sun);
-    const double gx = a.alpha / step_rad_, gy = a.beta / step_rad_;
-    const int ix = static_cast<int>(std::floor(gx)), iy = static_cast<int>(std::floor(gy));
-    const double fx = gx - ix, fy = gy - iy;
-    const double w4[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
-    for (int k = 0; k < 4; ++k) {
-      if (w4[k] < 1e-9) continue;
-      const int nx = ix + (k & 1), ny = iy + (k >> 1);
-      if (std::abs(nx) > nodes_x_ || std::abs(ny) > nodes_y_) return std::nullopt;
-      node[count] = {nx, ny};
-      weight[count] = static_cast<float>(w4[k]);
-      ++count;
-    }
-  }
+  // The nodes and their weights as the renderer blends their spot shapes.
+  const SpotCache::NodeBlend nodes = design_.spotCache().nodesOf(sun);
+  for (int k = 0; k < nodes.count; ++k)
+    if (std::abs(nodes.nodes[k].ix) > nodes_x_ || std::abs(nodes.nodes[k].iy) > nodes_y_) return std::nullopt;
+  const int count = nodes.count;
   const Eigen::Vector2d drift = driftUm(sun);
   if (!drift.allFinite()) return std::nullopt;
   // Pixel (col, row) reads canvas k at (col + u + drift_x_px, row + v + drift_y_px):
@@ -245,10 +227,10 @@ std::optional<cv::Mat> DesignCanvases::image(const Eigen::Vector2d& angles_rad, 
   std::array<const Canvas*, 4> canvases{};
   std::array<int, 4> base_u{}, base_v{};  // canvas k's column and row of the blend's (0, 0)
   for (int k = 0; k < count; ++k) {
-    const Canvas& canvas = this->canvas(node[k].first, node[k].second);
+    const Canvas& canvas = this->canvas(nodes.nodes[k].ix, nodes.nodes[k].iy);
     if (canvas.rate.empty()) return std::nullopt;
     canvases[k] = &canvas;
-    blend_weights[k] = static_cast<float>(weight[k]);
+    blend_weights[k] = nodes.nodes[k].weight;
     base_u[k] = static_cast<int>(fu) - 1 + canvas.drift_x_px;
     base_v[k] = static_cast<int>(fv) - 1 + canvas.drift_y_px;
     if (base_u[k] < 0 || base_v[k] < 0 || base_u[k] + w + 3 > canvas.rate.cols || base_v[k] + h + 3 > canvas.rate.rows)

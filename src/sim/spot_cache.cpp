@@ -231,13 +231,11 @@ void SpotCache::warmUp(const ApertureGeometry& aperture, double alpha_max_rad, d
   for (auto& t : pool) t.join();
 }
 
-SpotCache::Blend SpotCache::lookup(const ApertureGeometry& aperture, const Eigen::Vector3d& sun_mask) {
-  const std::string key = aperture.key();
-  Blend blend;
+SpotCache::NodeBlend SpotCache::nodesOf(const Eigen::Vector3d& sun_mask) const {
+  NodeBlend blend;
   if (path_.mode == OpticsMode::kFarField) {
     // The Fraunhofer shape does not depend on the incidence; only cos(theta) does.
-    blend.maps[0] = node(aperture, key, 0, 0);
-    blend.weights[0] = static_cast<float>(sun_mask.normalized().z());
+    blend.nodes[0] = {0, 0, static_cast<float>(sun_mask.normalized().z())};
     blend.count = 1;
     return blend;
   }
@@ -248,10 +246,20 @@ SpotCache::Blend SpotCache::lookup(const ApertureGeometry& aperture, const Eigen
   const double w[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
   for (int k = 0; k < 4; ++k) {
     if (w[k] < 1e-9) continue;
-    blend.maps[blend.count] = node(aperture, key, ix + (k & 1), iy + (k >> 1));
-    blend.weights[blend.count] = static_cast<float>(w[k]);
-    ++blend.count;
+    blend.nodes[blend.count++] = {ix + (k & 1), iy + (k >> 1), static_cast<float>(w[k])};
   }
+  return blend;
+}
+
+SpotCache::Blend SpotCache::lookup(const ApertureGeometry& aperture, const Eigen::Vector3d& sun_mask) {
+  const std::string key = aperture.key();
+  const NodeBlend nodes = nodesOf(sun_mask);
+  Blend blend;
+  for (int k = 0; k < nodes.count; ++k) {
+    blend.maps[k] = node(aperture, key, nodes.nodes[k].ix, nodes.nodes[k].iy);
+    blend.weights[k] = nodes.nodes[k].weight;
+  }
+  blend.count = nodes.count;
   return blend;
 }
 

@@ -52,8 +52,21 @@ class SpotCache {
     void composeInto(SpotMap& out) const;
   };
 
+  // The nodes an incidence direction `sun_mask` (mask frame) blends, with
+  // bilinear weights in (alpha, beta) of the mask frame; in the far field
+  // node (0, 0) alone, weighted cos(theta).
+  struct NodeWeight {
+    int ix = 0, iy = 0;
+    float weight = 0.0f;
+  };
+  struct NodeBlend {
+    std::array<NodeWeight, 4> nodes;
+    int count = 0;
+  };
+  NodeBlend nodesOf(const Eigen::Vector3d& sun_mask) const;
+
   // Maps around the incidence direction `sun_mask` (unit, mask frame), with
-  // bilinear weights in (alpha, beta) of the mask frame.
+  // the weights of nodesOf.
   Blend lookup(const ApertureGeometry& aperture, const Eigen::Vector3d& sun_mask);
 
   // Computes every node an incidence within +-alpha_max, +-beta_max [rad]
