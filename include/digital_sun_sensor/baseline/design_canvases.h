@@ -12,7 +12,10 @@
 // renderer's bilinear read of 1 um samples; up to 2e-3 where a spot map's
 // crop ends), which moves ~1 % of the lit pixels by one ADC code. The
 // pattern estimator decides with it only where the decision is clear by a
-// margin that covers that (PatternEstimator::kCanvasZMargin).
+// margin that covers that (PatternEstimator::kCanvasZMargin). Memory: a
+// float per pixel of the wider detector per node (thesis_ca's 121: 195 MB),
+// built on first use or by warmUp (0.2 s on two cores once the diffraction
+// cache is warm).
 #pragma once
 
 #include <Eigen/Core>

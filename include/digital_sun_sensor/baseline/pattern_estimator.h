@@ -2,8 +2,9 @@
 // the centroid chain finds no spot to match: the whole-pattern solve
 // (baseline/pattern_solve.h) on the sensor's design, no training and no
 // calibration. Where the pattern repeats within the field, an image that
-// fits two places about equally is decided by the design's rendered image
-// at each; if that cannot tell them apart either, it is answered
+// fits two places about equally is decided by the design's image at each
+// (from its canvases where they decide by a margin, else rendered); if
+// that cannot tell them apart either, it is answered
 // ambiguous_aperture, with the better fit's angles. An answer whose image
 // holds light the design does not (a ghost, stray light: its chi^2 excess,
 // AliasEvidence::unexplained_z, above kMaxUnexplainedZ) is declined
@@ -110,8 +111,8 @@ class PatternEstimator : public SunEstimator {
                                                         const CoarseDirections& coarse) override;
   static constexpr double kCoarseDecisionSigmas = 3.0;
   // The design's spot shapes over the field, which its alias decisions and
-  // unexplained-light check render (else computed on first use: the first
-  // images of thesis_ca took up to seconds).
+  // unexplained-light check render, and its canvases (else computed on
+  // first use: the first images of thesis_ca took up to seconds).
   void warmUp(int threads) const override {
     design_.warmUp(threads);
     if (canvases_) canvases_->warmUp(threads);
