@@ -14,6 +14,7 @@
 #include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
 #include "digital_sun_sensor/sim/geometry.h"
+#include "digital_sun_sensor/sim/readout.h"
 #include "digital_sun_sensor/sim/renderer.h"
 
 namespace dss {
@@ -48,10 +49,8 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
     linear_code_.push_back(noise_.inLinearRange(code, kLinearRangeSigmas));
   for (int sum = 0; sum <= 2 * config.maxCode(); ++sum)
     variance_of_half_sum_.push_back(noise_.varianceOfValue(0.5 * sum));
-  // The code of a design pixel that holds no light: that of a render lighting none.
-  unlit_code_ =
-      designImage(Eigen::Vector2d::Zero(), cv::Mat::zeros(config.detector.height_px, config.detector.width_px, CV_8U))
-          .at<std::uint16_t>(0, 0);
+  // The code of a design pixel that holds no light (the noise-free detector's, no dark electrons).
+  unlit_code_ = static_cast<std::uint16_t>(NoiseFreeReadout(config, true).unlitCode(0.0));
   if (options.sigma_images <= 0) return;
   // The design with its detector's fixed patterns and noise, no unit errors, no anomalies.
   SensorConfig design = config;

@@ -91,14 +91,15 @@ NoiseFreeReadout::NoiseFreeReadout(const SensorConfig& config, bool threshold)
   }
 }
 
-int NoiseFreeReadout::unlitCode(double dark_e) const {
-  return table_[static_cast<std::size_t>(
-      std::clamp(std::floor(dark_e * gain_ + black_dn_ + 0.5), 0.0, static_cast<double>(max_code_)))];
+int NoiseFreeReadout::unlitDn(double dark_e) const {
+  return static_cast<int>(
+      std::clamp(std::floor(dark_e * gain_ + black_dn_ + 0.5), 0.0, static_cast<double>(max_code_)));
 }
 
+int NoiseFreeReadout::unlitCode(double dark_e) const { return table_[static_cast<std::size_t>(unlitDn(dark_e))]; }
+
 double NoiseFreeReadout::unlitBelowE(double dark_e) const {
-  const int unlit_dn =
-      static_cast<int>(std::clamp(std::floor(dark_e * gain_ + black_dn_ + 0.5), 0.0, static_cast<double>(max_code_)));
+  const int unlit_dn = unlitDn(dark_e);
   int top_unlit = -1;
   while (top_unlit < max_code_ && table_[top_unlit + 1] == table_[unlit_dn]) ++top_unlit;
   return top_unlit >= unlit_dn ? ((top_unlit + 0.5 - black_dn_) / gain_ - dark_e) * (1.0 - 1e-9) : 0.0;

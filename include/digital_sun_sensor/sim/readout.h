@@ -66,6 +66,8 @@ class NoiseFreeReadout {
   const std::vector<int>& table() const { return table_; }
 
  private:
+  int unlitDn(double dark_e) const;  // the ADC code of `dark_e` alone
+
   std::vector<int> table_;
   int max_code_ = 0;
   double gain_ = 0.0;  // DN per electron
