@@ -43,7 +43,7 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
   const double lit_share = (config.threshold.level_fraction * config.maxCode() - config.noise.black_level_dn) /
                            (peak_code - config.noise.black_level_dn);
   if (config.exposure.mode == ExposureMode::kAuto && config.threshold.enabled && lit_share > 0.0 && lit_share < 1.0)
-    reach_share_ = kReachMargin * lit_share;
+    reach_.emplace(solver_.patternTemplate(), kReachMargin * lit_share);
   // Image values are codes: their variances and linear range once per code.
   for (int code = 0; code <= config.maxCode(); ++code)
     linear_code_.push_back(noise_.inLinearRange(code, kLinearRangeSigmas));
@@ -79,12 +79,11 @@ PatternEstimator::PatternEstimator(const SensorConfig& config, const PatternEsti
 
 std::optional<cv::Mat> PatternEstimator::designPixels(const cv::Mat& image,
                                                       const std::vector<Eigen::Vector2d>& places_rad) const {
-  if (!(reach_share_ > 0.0)) return std::nullopt;
+  if (!reach_) return std::nullopt;
   cv::Mat mask = image > 0;
   for (const auto& place : places_rad) {
     const Eigen::Vector2d shift = solver_.shiftUm(place);
-    cv::bitwise_or(mask, solver_.patternTemplate().reaching(image.cols, image.rows, shift.x(), shift.y(), reach_share_),
-                   mask);
+    reach_->mark(mask, shift.x(), shift.y());
   }
   return mask;
 }

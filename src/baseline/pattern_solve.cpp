@@ -8,6 +8,7 @@
 #include <limits>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
+#include <utility>
 
 #include "digital_sun_sensor/common/row_runs.h"
 #include "digital_sun_sensor/common/units.h"
@@ -36,6 +37,9 @@ struct PatternSolver::Pixels {
   std::vector<double> values;
   double total = 0.0;
   std::vector<cv::Mat> block_sums;  // per level, CV_64F, ceil(rows / factor) x ceil(cols / factor)
+  // Per level and row of blocks, the columns [first, last) from its first
+  // block that holds light to its last (first == last: none).
+  std::vector<std::vector<std::pair<int, int>>> lit_blocks;
 };
 
 // A block-averaged template above a level (what a lit pixel can lie on),
@@ -207,6 +211,19 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
     else
       blockSums<std::uint16_t, std::uint32_t>(image, f, sums);
   }
+  px.lit_blocks.resize(levels_.size());
+  for (std::size_t l = 0; l < levels_.size(); ++l) {
+    const cv::Mat& sums = px.block_sums[l];
+    auto& spans = px.lit_blocks[l];
+    spans.assign(static_cast<std::size_t>(sums.rows), {0, 0});
+    for (int r = 0; r < sums.rows; ++r) {
+      const double* row = sums.ptr<double>(r);
+      int first = 0, last = sums.cols;
+      while (first < last && row[first] == 0.0) ++first;
+      while (last > first && row[last - 1] == 0.0) --last;
+      spans[static_cast<std::size_t>(r)] = {first, last};
+    }
+  }
   // Sized first and filled through pointers: a push_back per pixel cost
   // more than the rest of this function. Every element is written below:
   // not cleared first, a resize writes zeros only where the last image had fewer.
@@ -335,8 +352,16 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const 
       }
     } else {
       // The local searches, 9 or 49 shifts: a dot product per row of blocks
-      // and shift (scattered as above, the search took longer).
-      for (int r = 0; r < sums.rows; ++r)
+      // and shift (scattered as above, the search took longer), over the
+      // blocks from the row's first that holds light to its last. Those
+      // before and after add only +0 (sums and template are at least 0):
+      // dropped in fours from the start, and from the end down to a
+      // multiple of four, each product keeps its lane and its place in it
+      // (the same sums to the bit).
+      const auto& lit_blocks = px.lit_blocks[level];
+      for (int r = 0; r < sums.rows; ++r) {
+        const auto [first_lit, end_lit] = lit_blocks[static_cast<std::size_t>(r)];
+        if (first_lit == end_lit) continue;
         for (int j = 0; j < nv; ++j) {
           const int tv = v0 + r - (v_lo + j);
           if (tv < 0 || tv >= l.rows) continue;
@@ -345,12 +370,20 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const 
           for (int i = 0; i < nu; ++i) {
             // Template cell u - shift_u must lie in [0, cols).
             const int shift_u = u_lo + i;
-            const int u_from = std::max(u0, shift_u), u_to = std::min(u0 + sums.cols, shift_u + l.cols);
+            int u_from = std::max(u0, shift_u);
+            const int u_to = std::min(u0 + sums.cols, shift_u + l.cols);
             if (u_to <= u_from) continue;
+            u_from += std::max(0, (u0 + first_lit - u_from) / 4 * 4);
+            const int lit_to = u0 + end_lit;
+            if (lit_to <= u_from) continue;
+            int n = u_to - u_from;
+            n = std::min(n, (lit_to - u_from + 3) / 4 * 4);
+            if (n <= 0) continue;
             scores[static_cast<std::size_t>(j * nu + i)] +=
-                dot(image_row + (u_from - u0), template_row + (u_from - shift_u), u_to - u_from);
+                dot(image_row + (u_from - u0), template_row + (u_from - shift_u), n);
           }
         }
+      }
     }
     for (int j = 0; j < nv; ++j)
       for (int i = 0; i < nu; ++i) {

@@ -133,19 +133,36 @@ void PatternTemplate::Shifted::run(int col, int row, int count, double* value) c
   }
 }
 
+PatternTemplate::Reach::Reach(const PatternTemplate& pattern, double fraction)
+    : pattern_(&pattern), fraction_(fraction), at_peak_(pattern.values_ >= fraction) {}
+
+void PatternTemplate::Reach::mark(cv::Mat& mask, double shift_x_um, double shift_y_um) const {
+  const PatternTemplate& p = *pattern_;
+  const int w = mask.cols, h = mask.rows;
+  if (mask.type() != CV_8U) throw std::invalid_argument("pattern template: the reach mask is not CV_8U");
+  if (fraction_ <= 0.0) {  // the part off the template reads 0, which reaches it too
+    mask.setTo(255);
+    return;
+  }
+  // Pixel (c, r) lies nearest template pixel (c + u0, r + v0).
+  const int u0 = static_cast<int>(std::lround(p.centre_px_ - 0.5 * (w - 1) - shift_x_um / p.pitch_um_));
+  const int v0 = static_cast<int>(std::lround(p.centre_px_ - 0.5 * (h - 1) - shift_y_um / p.pitch_um_));
+  const cv::Rect inside = cv::Rect(u0, v0, w, h) & cv::Rect(0, 0, p.side_px_, p.side_px_);
+  if (inside.area() == 0) return;
+  // The part of the detector off the template reads 0: the peak is the covered part's (at least 0).
+  const double peak = p.peakIn(inside);
+  if (!(peak > 0.0)) return;
+  cv::Mat out = mask(inside - cv::Point(u0, v0));
+  if (peak == 1.0)  // the template's own (its values are divided by it)
+    cv::bitwise_or(out, at_peak_(inside), out);
+  else
+    cv::bitwise_or(out, p.values_(inside) >= fraction_ * peak, out);
+}
+
 cv::Mat PatternTemplate::reaching(int detector_width_px, int detector_height_px, double shift_x_um, double shift_y_um,
                                   double fraction) const {
-  // Pixel (c, r) lies nearest template pixel (c + u0, r + v0).
-  const int u0 = static_cast<int>(std::lround(centre_px_ - 0.5 * (detector_width_px - 1) - shift_x_um / pitch_um_));
-  const int v0 = static_cast<int>(std::lround(centre_px_ - 0.5 * (detector_height_px - 1) - shift_y_um / pitch_um_));
   cv::Mat out = cv::Mat::zeros(detector_height_px, detector_width_px, CV_8U);
-  const cv::Rect inside = cv::Rect(u0, v0, detector_width_px, detector_height_px) & cv::Rect(0, 0, side_px_, side_px_);
-  if (inside.area() == 0) return out;
-  // The part of the detector off the template reads 0: the peak is the covered part's (at least 0).
-  const double peak = peakIn(inside);
-  if (!(peak > 0.0)) return out;
-  cv::Mat(values_(inside) >= fraction * peak).copyTo(out(inside - cv::Point(u0, v0)));
-  if (fraction <= 0.0) out.setTo(255);  // the uncovered part's zeros reach it too
+  Reach(*this, fraction).mark(out, shift_x_um, shift_y_um);
   return out;
 }
 

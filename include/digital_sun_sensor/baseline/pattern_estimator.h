@@ -178,10 +178,10 @@ class PatternEstimator : public SunEstimator {
   MaskGeometry geometry_;                     // the nominal design, for the sub-FOV class
   AngleWindow field_;
   std::array<double, 2> sigma_scale_{1.0, 1.0};
-  double reach_share_ = 0.0;                  // 0: decisions render the whole detector
-  std::vector<double> variance_of_half_sum_;  // of a value, per twice the value (the sum of two codes)
-  std::vector<char> linear_code_;             // inLinearRange per code
-  std::uint16_t unlit_code_ = 0;              // a design pixel's without light
+  std::optional<PatternTemplate::Reach> reach_;  // none: decisions render the whole detector
+  std::vector<double> variance_of_half_sum_;     // of a value, per twice the value (the sum of two codes)
+  std::vector<char> linear_code_;                // inLinearRange per code
+  std::uint16_t unlit_code_ = 0;                 // a design pixel's without light
 };
 
 }  // namespace dss

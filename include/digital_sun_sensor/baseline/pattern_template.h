@@ -49,9 +49,25 @@ class PatternTemplate {
   // on the pattern's centre at zero shift.
   Shifted shifted(int detector_width_px, int detector_height_px, double shift_x_um, double shift_y_um) const;
 
-  // CV_8U: the detector's pixels where the template shifted by (shift_x,
-  // shift_y) um reaches `fraction` of its brightest value on the detector
-  // (read at the nearest template pixel; no interpolation).
+  // The detector's pixels where the template shifted by (shift_x, shift_y)
+  // um reaches a share of its brightest value on the detector (read at the
+  // nearest template pixel; no interpolation), for one share at many
+  // shifts. Where the detector holds the template's brightest pixel (its
+  // peak, 1: thesis_ca's pattern centre is in view at every shift of the
+  // field) they are a window of one byte mask made once, not a comparison
+  // of the template's values per shift.
+  class Reach {
+   public:
+    Reach(const PatternTemplate& pattern, double fraction);
+    // Sets those pixels of `mask` (CV_8U, the detector's size) to 255, the others left as they are.
+    void mark(cv::Mat& mask, double shift_x_um, double shift_y_um) const;
+
+   private:
+    const PatternTemplate* pattern_;
+    double fraction_;
+    cv::Mat at_peak_;  // CV_8U: the template's pixels at or above fraction_ of its peak
+  };
+  // CV_8U: the pixels Reach marks (255) on an unmarked detector.
   cv::Mat reaching(int detector_width_px, int detector_height_px, double shift_x_um, double shift_y_um,
                    double fraction) const;
 
