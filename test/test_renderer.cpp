@@ -391,6 +391,11 @@ TEST(NoiseFreeReadout, GivesTheDetectorsNoiseFreeCodes) {
     }
     EXPECT_GT(unlit, 0) << name;
     EXPECT_EQ(readout.code(1.5 * config.noise.full_well_e), config.maxCode()) << name;  // clipped by the ADC
+    // The vectorised run: code() of each, the unlit code below unlitBelowE among them.
+    std::vector<std::uint16_t> run(n);
+    readout.codes(electrons.ptr<float>(), 1.0f, config.noise.full_well_e, n, run.data());
+    for (int i = 0; i < n; ++i)
+      ASSERT_EQ(run[i], codes.at<int>(0, i)) << name << " at " << electrons.at<float>(0, i) << " e";
   }
 }
 

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "digital_sun_sensor/common/vector_clones.h"
+
 namespace dss {
 namespace {
 
@@ -88,6 +90,19 @@ NoiseFreeReadout::NoiseFreeReadout(const SensorConfig& config, bool threshold)
     } else if (config.threshold.rescale) {
       table_[d] = static_cast<int>(std::floor((d - level) / (max_code_ - level) * max_code_ + 0.5));
     }
+  }
+}
+
+DSS_VECTOR_CLONES
+void NoiseFreeReadout::codes(const float* rate, float scale, double clip_e, int count, std::uint16_t* out) const {
+  const int* table = table_.data();
+  const double above_top = max_code_ + 1.0;
+  for (int i = 0; i < count; ++i) {
+    const double electrons = std::min<double>(rate[i] * scale, clip_e);
+    // code()'s truncation and clamp, in an int once capped where every
+    // value clamps to the top code anyway.
+    const int dn = static_cast<int>(std::min(electrons * gain_ + black_dn_ + 0.5, above_top));
+    out[i] = static_cast<std::uint16_t>(table[std::clamp(dn, 0, max_code_)]);
   }
 }
 

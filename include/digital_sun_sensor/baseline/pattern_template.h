@@ -83,6 +83,7 @@ class PatternTemplate {
 
   cv::Mat values_;
   cv::Mat block_max_;  // CV_64F: the maximum of each kMaxBlockPx x kMaxBlockPx block of values_
+  cv::Point peak_px_;  // a pixel holding the template's peak, 1
   int side_px_ = 0;
   double pitch_um_ = 1.0;
   double centre_px_ = 0.0;

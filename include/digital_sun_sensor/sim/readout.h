@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <vector>
 
 #include "digital_sun_sensor/common/random.h"
@@ -57,6 +58,10 @@ class NoiseFreeReadout {
         half_up >= 0.0 && half_up < 2e9 ? static_cast<double>(static_cast<long long>(half_up)) : std::floor(half_up);
     return table_[static_cast<std::size_t>(std::clamp(dn, 0.0, static_cast<double>(max_code_)))];
   }
+  // code(min(rate[i] * scale, clip_e)) into out[i], i < count, for rates
+  // at least 0 (the product in float): the same operations without a
+  // branch, which the compiler vectorises (the table read a gather).
+  void codes(const float* rate, float scale, double clip_e, int count, std::uint16_t* out) const;
   // The code of a pixel holding `dark_e` alone; the signal below which a
   // pixel reads it too (the ADC codes that the threshold maps onto it: under
   // thesis_ca's 90 % threshold, most of the scale), 0 where none does.
