@@ -35,9 +35,12 @@ PatternTemplate::PatternTemplate(const SensorConfig& config) {
   const Renderer renderer(SensorInstance::nominalOf(wide));
   renderer.expectedElectrons(Eigen::Vector3d::UnitZ(), nullptr).convertTo(values_, CV_64F);
   double peak = 0.0;
-  cv::minMaxLoc(values_, nullptr, &peak, nullptr, &peak_px_);
+  cv::minMaxLoc(values_, nullptr, &peak);
   if (!(peak > 0.0)) throw std::invalid_argument("pattern template: the design puts no light on the detector");
   values_ /= peak;
+  for (int v = 0; v < side_px_ && peak_px_.size() < kPeakPixels; ++v)
+    for (int u = 0; u < side_px_ && peak_px_.size() < kPeakPixels; ++u)
+      if (values_.at<double>(v, u) == 1.0) peak_px_.emplace_back(u, v);
   const int blocks = side_px_ / kMaxBlockPx;  // whole blocks only: the rest is an edge
   block_max_.create(blocks, blocks, CV_64F);
   for (int j = 0; j < blocks; ++j)
@@ -150,7 +153,9 @@ void PatternTemplate::Reach::mark(cv::Mat& mask, double shift_x_um, double shift
   const cv::Rect inside = cv::Rect(u0, v0, w, h) & cv::Rect(0, 0, p.side_px_, p.side_px_);
   if (inside.area() == 0) return;
   // The part of the detector off the template reads 0: the peak is the covered part's (at least 0).
-  const double peak = inside.contains(p.peak_px_) ? 1.0 : p.peakIn(inside);
+  const bool holds_peak =
+      std::any_of(p.peak_px_.begin(), p.peak_px_.end(), [&](const cv::Point& px) { return inside.contains(px); });
+  const double peak = holds_peak ? 1.0 : p.peakIn(inside);
   if (!(peak > 0.0)) return;
   cv::Mat out = mask(inside - cv::Point(u0, v0));
   if (peak == 1.0)  // the template's own (its values are divided by it)

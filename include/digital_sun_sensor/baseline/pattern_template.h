@@ -8,6 +8,7 @@
 #pragma once
 
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "digital_sun_sensor/sim/sensor_config.h"
 
@@ -52,10 +53,10 @@ class PatternTemplate {
   // The detector's pixels where the template shifted by (shift_x, shift_y)
   // um reaches a share of its brightest value on the detector (read at the
   // nearest template pixel; no interpolation), for one share at many
-  // shifts. Where the detector holds the template's brightest pixel (its
-  // peak, 1: thesis_ca's pattern centre is in view at every shift of the
-  // field) they are a window of one byte mask made once, not a comparison
-  // of the template's values per shift.
+  // shifts. Where the detector holds one of the template's brightest
+  // pixels (its peak, 1: over 60 % of thesis_ca's field) they are a window
+  // of one byte mask made once; elsewhere the template's values are
+  // compared per shift.
   class Reach {
    public:
     Reach(const PatternTemplate& pattern, double fraction);
@@ -83,7 +84,10 @@ class PatternTemplate {
 
   cv::Mat values_;
   cv::Mat block_max_;  // CV_64F: the maximum of each kMaxBlockPx x kMaxBlockPx block of values_
-  cv::Point peak_px_;  // a pixel holding the template's peak, 1
+  // Pixels holding the template's peak, 1 (up to kPeakPixels: a periodic
+  // mask repeats it; thesis_ca's three lie 325 px apart in a row).
+  std::vector<cv::Point> peak_px_;
+  static constexpr std::size_t kPeakPixels = 16;
   int side_px_ = 0;
   double pitch_um_ = 1.0;
   double centre_px_ = 0.0;
