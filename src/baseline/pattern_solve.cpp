@@ -37,10 +37,13 @@ struct PatternSolver::Pixels {
   std::vector<double> values;
   double total = 0.0;
   std::vector<cv::Mat> block_sums;  // per level, CV_64F, ceil(rows / factor) x ceil(cols / factor)
-  // Per level, its rows' runs of blocks that hold light, [begin, end) in
-  // raster order; row r's are lit_runs[lit_row_first[r] .. lit_row_first[r + 1]).
-  std::vector<std::vector<std::pair<int, int>>> lit_runs;
-  std::vector<std::vector<int>> lit_row_first;
+  // Per level, row of blocks and phase p < 4: the runs [begin, end) of
+  // whole groups of four blocks from a column = p (mod 4) that hold light
+  // (merged; end may pass the row's), in raster order and phase by phase;
+  // row r's at phase p are lit_groups[lit_groups_first[4 r + p] ..
+  // lit_groups_first[4 r + p + 1]) (litDot).
+  std::vector<std::vector<std::pair<int, int>>> lit_groups;
+  std::vector<std::vector<int>> lit_groups_first;
 };
 
 // A block-averaged template above a level (what a lit pixel can lie on),
@@ -215,26 +218,39 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
     else
       blockSums<std::uint16_t, std::uint32_t>(image, f, sums);
   }
-  px.lit_runs.resize(levels_.size());
-  px.lit_row_first.resize(levels_.size());
+  px.lit_groups.resize(levels_.size());
+  px.lit_groups_first.resize(levels_.size());
+  thread_local std::vector<std::pair<int, int>> row_runs;
   for (std::size_t l = 0; l < levels_.size(); ++l) {
     const cv::Mat& sums = px.block_sums[l];
-    auto& runs = px.lit_runs[l];
-    auto& row_first = px.lit_row_first[l];
-    runs.clear();
-    row_first.resize(static_cast<std::size_t>(sums.rows) + 1);
+    auto& groups = px.lit_groups[l];
+    auto& first = px.lit_groups_first[l];
+    groups.clear();
+    first.resize(4 * static_cast<std::size_t>(sums.rows) + 1);
     for (int r = 0; r < sums.rows; ++r) {
-      row_first[static_cast<std::size_t>(r)] = static_cast<int>(runs.size());
       const double* row = sums.ptr<double>(r);
+      row_runs.clear();
       for (int c = 0; c < sums.cols;) {
         while (c < sums.cols && row[c] == 0.0) ++c;
         if (c == sums.cols) break;
         const int begin = c;
         while (c < sums.cols && row[c] != 0.0) ++c;
-        runs.emplace_back(begin, c);
+        row_runs.emplace_back(begin, c);
+      }
+      for (int phase = 0; phase < 4; ++phase) {
+        first[4 * static_cast<std::size_t>(r) + phase] = static_cast<int>(groups.size());
+        const std::size_t row_start = groups.size();
+        for (const auto& [begin, end] : row_runs) {
+          // The groups of four from `phase` that meet the run.
+          const int from = begin - (begin - phase + 4) % 4, to = end + (phase - end % 4 + 4) % 4;
+          if (groups.size() > row_start && from <= groups.back().second)
+            groups.back().second = to;
+          else
+            groups.emplace_back(from, to);
+        }
       }
     }
-    row_first[static_cast<std::size_t>(sums.rows)] = static_cast<int>(runs.size());
+    first[4 * static_cast<std::size_t>(sums.rows)] = static_cast<int>(groups.size());
   }
 
   // Sized first and filled through pointers: a push_back per pixel cost
@@ -281,25 +297,25 @@ inline double laneSum(const Lanes& v) { return (v[0] + v[1]) + (v[2] + v[3]); }
 // sum a[i] b[i], i < n, in four lanes (AVX in the AVX2 clones of its
 // callers; Eigen's dot, compiled for SSE2, took two lanes and a fixed cost
 // per call several times that of thesis_ca's 16-128 products), a[i] being
-// 0 where i + first lies outside the runs [begin, end) (sorted, disjoint):
-// the groups of four that meet none are left out. The products are at least +0
-// (block sums, template), so those add nothing to their lanes, and every
-// other product keeps its lane and its place in it: the same sum to the bit
-// as over every group (the search's lit blocks, ~30 % of its rows' spans on
-// thesis_ca's finest level).
+// 0 where i + first lies outside the runs [begin, end) of whole groups of
+// four from `first` (Pixels::lit_groups at first's phase, sorted,
+// disjoint): the groups that hold no light are left out. The products are
+// at least +0 (block sums, template), so those add nothing to their lanes,
+// and every other product keeps its lane and its place in it: the same sum
+// to the bit as over every group (a third of the groups of the rows' lit
+// spans on thesis_ca's finest level).
 inline double litDot(const double* a, const double* b, int n, const std::pair<int, int>* run,
                      const std::pair<int, int>* runs_end, int first) {
   Lanes sums = {0.0, 0.0, 0.0, 0.0};
   const int groups_end = n / 4 * 4;
-  int next = 0;  // where the groups not yet summed start
-  for (; run != runs_end && next < groups_end; ++run) {
-    const int to = std::min(groups_end, (run->second - first + 3) / 4 * 4);
-    for (int i = std::max(next, (run->first - first) / 4 * 4); i < to; i += 4) {
+  for (; run != runs_end; ++run) {
+    const int from = std::max(0, run->first - first), to = std::min(groups_end, run->second - first);
+    if (from >= groups_end) break;
+    for (int i = from; i < to; i += 4) {
       Lanes x, y;
       std::memcpy(&x, a + i, sizeof x), std::memcpy(&y, b + i, sizeof y);
       sums += x * y;
     }
-    next = std::max(next, to);
   }
   double tail = 0.0;
   for (int i = groups_end; i < n; ++i) tail += a[i] * b[i];
@@ -379,12 +395,11 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const 
       // The local searches, 9 or 49 shifts: a dot product per row of blocks
       // and shift (scattered as above, the search took longer), over the
       // row's lit blocks (litDot).
-      const auto& runs = px.lit_runs[level];
-      const auto& row_first = px.lit_row_first[level];
+      const auto& groups = px.lit_groups[level];
+      const auto& groups_first = px.lit_groups_first[level];
       for (int r = 0; r < sums.rows; ++r) {
-        const std::pair<int, int>* runs_begin = runs.data() + row_first[static_cast<std::size_t>(r)];
-        const std::pair<int, int>* runs_end = runs.data() + row_first[static_cast<std::size_t>(r) + 1];
-        if (runs_begin == runs_end) continue;
+        const std::size_t at = 4 * static_cast<std::size_t>(r);
+        if (groups_first[at] == groups_first[at + 4]) continue;  // a dark row
         for (int j = 0; j < nv; ++j) {
           const int tv = v0 + r - (v_lo + j);
           if (tv < 0 || tv >= l.rows) continue;
@@ -395,9 +410,11 @@ std::optional<PatternSolution> PatternSolver::solve(const cv::Mat& image, const 
             const int shift_u = u_lo + i;
             const int u_from = std::max(u0, shift_u), u_to = std::min(u0 + sums.cols, shift_u + l.cols);
             if (u_to <= u_from) continue;
+            const int first = u_from - u0;
+            const std::size_t phase = at + static_cast<std::size_t>(first % 4);
             scores[static_cast<std::size_t>(j * nu + i)] +=
-                litDot(image_row + (u_from - u0), template_row + (u_from - shift_u), u_to - u_from, runs_begin,
-                       runs_end, u_from - u0);
+                litDot(image_row + first, template_row + (u_from - shift_u), u_to - u_from,
+                       groups.data() + groups_first[phase], groups.data() + groups_first[phase + 1], first);
           }
         }
       }

@@ -84,7 +84,9 @@ PatternTemplate::Shifted PatternTemplate::shifted(int detector_width_px, int det
   const double v = centre_px_ - 0.5 * (detector_height_px - 1) - shift_y_um / pitch_um_;
   const double fu = std::floor(u), fv = std::floor(v);
   Shifted s;
-  s.pattern_ = this;
+  s.data_ = values_.ptr<double>();
+  s.stride_ = values_.step1();
+  s.side_ = side_px_;
   s.base_u_ = static_cast<int>(fu);
   s.base_v_ = static_cast<int>(fv);
   cubicWeights(u - fu, s.wu_, s.du_);
@@ -99,7 +101,7 @@ PatternTemplate::Shifted PatternTemplate::shifted(int detector_width_px, int det
 DSS_VECTOR_CLONES
 void PatternTemplate::Shifted::run(int col, int row, int count, double* value, double* grad_x, double* grad_y) const {
   const int iu = col + base_u_, iv = row + base_v_;
-  const int side = pattern_->side_px_;
+  const int side = side_;
   if (iu < 1 || iv < 1 || iu + count + 1 >= side || iv + 2 >= side) {  // partly outside: pixel by pixel
     for (int i = 0; i < count; ++i) value[i] = at(col + i, row, grad_x[i], grad_y[i]);
     return;
@@ -107,7 +109,7 @@ void PatternTemplate::Shifted::run(int col, int row, int count, double* value, d
   // Row by row of the four taps, each summed in at()'s order (bit-identical results).
   for (int i = 0; i < count; ++i) value[i] = grad_x[i] = grad_y[i] = 0.0;
   for (int j = 0; j < 4; ++j) {
-    const double* r = pattern_->values_.ptr<double>(iv - 1 + j) + (iu - 1);
+    const double* r = data_ + static_cast<std::size_t>(iv - 1 + j) * stride_ + (iu - 1);
     const double wv = wv_[j], dv = dv_[j];
     for (int i = 0; i < count; ++i) {
       const double along = wu_[0] * r[i] + wu_[1] * r[i + 1] + wu_[2] * r[i + 2] + wu_[3] * r[i + 3];
@@ -122,14 +124,14 @@ void PatternTemplate::Shifted::run(int col, int row, int count, double* value, d
 DSS_VECTOR_CLONES
 void PatternTemplate::Shifted::run(int col, int row, int count, double* value) const {
   const int iu = col + base_u_, iv = row + base_v_;
-  const int side = pattern_->side_px_;
+  const int side = side_;
   if (iu < 1 || iv < 1 || iu + count + 1 >= side || iv + 2 >= side) {
     for (int i = 0; i < count; ++i) value[i] = at(col + i, row);
     return;
   }
   for (int i = 0; i < count; ++i) value[i] = 0.0;
   for (int j = 0; j < 4; ++j) {
-    const double* r = pattern_->values_.ptr<double>(iv - 1 + j) + (iu - 1);
+    const double* r = data_ + static_cast<std::size_t>(iv - 1 + j) * stride_ + (iu - 1);
     const double wv = wv_[j];
     for (int i = 0; i < count; ++i)
       value[i] += wv * (wu_[0] * r[i] + wu_[1] * r[i + 1] + wu_[2] * r[i + 2] + wu_[3] * r[i + 3]);
