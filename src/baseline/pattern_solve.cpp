@@ -302,7 +302,7 @@ inline double laneSum(const Lanes& v) { return (v[0] + v[1]) + (v[2] + v[3]); }
 // disjoint): the groups that hold no light are left out. The products are
 // at least +0 (block sums, template), so those add nothing to their lanes,
 // and every other product keeps its lane and its place in it: the same sum
-// to the bit as over every group (a third of the groups of the rows' lit
+// to the bit as over every group (28 % of the groups of the rows' lit
 // spans on thesis_ca's finest level).
 inline double litDot(const double* a, const double* b, int n, const std::pair<int, int>* run,
                      const std::pair<int, int>* runs_end, int first) {
