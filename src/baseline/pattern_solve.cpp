@@ -37,11 +37,11 @@ struct PatternSolver::Pixels {
   std::vector<double> values;
   double total = 0.0;
   std::vector<cv::Mat> block_sums;  // per level, CV_64F, ceil(rows / factor) x ceil(cols / factor)
-  // Per level, row of blocks and phase p < 4: the runs [begin, end) of
-  // whole groups of four blocks from a column = p (mod 4) that hold light
-  // (merged; end may pass the row's), in raster order and phase by phase;
-  // row r's at phase p are lit_groups[lit_groups_first[4 r + p] ..
-  // lit_groups_first[4 r + p + 1]) (litDot).
+  // Per level above the coarse one, row of blocks and phase p < 4: the
+  // runs [begin, end) of whole groups of four blocks from a column = p
+  // (mod 4) that hold light (merged; end may pass the row's), in raster
+  // order and phase by phase; row r's at phase p are
+  // lit_groups[lit_groups_first[4 r + p] .. lit_groups_first[4 r + p + 1]) (litDot).
   std::vector<std::vector<std::pair<int, int>>> lit_groups;
   std::vector<std::vector<int>> lit_groups_first;
 };
@@ -218,10 +218,11 @@ void PatternSolver::pixelsOf(const cv::Mat& image, Pixels& px) const {
     else
       blockSums<std::uint16_t, std::uint32_t>(image, f, sums);
   }
+  // The local searches' lit groups (the global search, on level 0, skips dark blocks itself).
   px.lit_groups.resize(levels_.size());
   px.lit_groups_first.resize(levels_.size());
   thread_local std::vector<std::pair<int, int>> row_runs;
-  for (std::size_t l = 0; l < levels_.size(); ++l) {
+  for (std::size_t l = 1; l < levels_.size(); ++l) {
     const cv::Mat& sums = px.block_sums[l];
     auto& groups = px.lit_groups[l];
     auto& first = px.lit_groups_first[l];
