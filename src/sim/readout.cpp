@@ -96,25 +96,14 @@ NoiseFreeReadout::NoiseFreeReadout(const SensorConfig& config, bool threshold)
 DSS_VECTOR_CLONES
 void NoiseFreeReadout::codes(const float* rate, float scale, double clip_e, int count, std::uint16_t* out) const {
   const int* table = table_.data();
-  const double above_top = max_code_ + 1.0;
-  for (int i = 0; i < count; ++i) {
-    const double electrons = std::min<double>(rate[i] * scale, clip_e);
-    // code()'s truncation and clamp, in an int once capped where every
-    // value clamps to the top code anyway.
-    const int dn = static_cast<int>(std::min(electrons * gain_ + black_dn_ + 0.5, above_top));
-    out[i] = static_cast<std::uint16_t>(table[std::clamp(dn, 0, max_code_)]);
-  }
+  for (int i = 0; i < count; ++i)
+    out[i] = static_cast<std::uint16_t>(table[adcCode(std::min<double>(rate[i] * scale, clip_e))]);
 }
 
-int NoiseFreeReadout::unlitDn(double dark_e) const {
-  return static_cast<int>(
-      std::clamp(std::floor(dark_e * gain_ + black_dn_ + 0.5), 0.0, static_cast<double>(max_code_)));
-}
-
-int NoiseFreeReadout::unlitCode(double dark_e) const { return table_[static_cast<std::size_t>(unlitDn(dark_e))]; }
+int NoiseFreeReadout::unlitCode(double dark_e) const { return code(dark_e); }
 
 double NoiseFreeReadout::unlitBelowE(double dark_e) const {
-  const int unlit_dn = unlitDn(dark_e);
+  const int unlit_dn = adcCode(dark_e);
   int top_unlit = -1;
   while (top_unlit < max_code_ && table_[top_unlit + 1] == table_[unlit_dn]) ++top_unlit;
   return top_unlit >= unlit_dn ? ((top_unlit + 0.5 - black_dn_) / gain_ - dark_e) * (1.0 - 1e-9) : 0.0;

@@ -49,18 +49,10 @@ class NoiseFreeReadout {
   NoiseFreeReadout(const SensorConfig& config, bool threshold);
 
   // The delivered code of `electrons` (dark ones and any read noise
-  // included; the full well's clip is the caller's). floor() of the
-  // non-negative value is its truncation (exact; floor is a library call
-  // without SSE4.1, and this runs per lit pixel).
-  int code(double electrons) const {
-    const double half_up = electrons * gain_ + black_dn_ + 0.5;
-    const double dn =
-        half_up >= 0.0 && half_up < 2e9 ? static_cast<double>(static_cast<long long>(half_up)) : std::floor(half_up);
-    return table_[static_cast<std::size_t>(std::clamp(dn, 0.0, static_cast<double>(max_code_)))];
-  }
-  // code(min(rate[i] * scale, clip_e)) into out[i], i < count, for rates
-  // at least 0 (the product in float): the same operations without a
-  // branch, which the compiler vectorises (the table read a gather).
+  // included; the full well's clip is the caller's).
+  int code(double electrons) const { return table_[static_cast<std::size_t>(adcCode(electrons))]; }
+  // code(min(rate[i] * scale, clip_e)) into out[i], i < count (the product
+  // in float), in a loop the compiler vectorises (the table read a gather).
   void codes(const float* rate, float scale, double clip_e, int count, std::uint16_t* out) const;
   // The code of a pixel holding `dark_e` alone; the signal below which a
   // pixel reads it too (the ADC codes that the threshold maps onto it: under
@@ -71,7 +63,14 @@ class NoiseFreeReadout {
   const std::vector<int>& table() const { return table_; }
 
  private:
-  int unlitDn(double dark_e) const;  // the ADC code of `dark_e` alone
+  // The ADC code of `electrons`, rounded half up and clipped to [0, top]:
+  // the value is first held within [-1, top + 1], where truncation (exact,
+  // one instruction, vectorised) clips to the same code as floor() (a
+  // library call without SSE4.1; this runs per lit pixel).
+  int adcCode(double electrons) const {
+    const double half_up = std::clamp(electrons * gain_ + black_dn_ + 0.5, -1.0, max_code_ + 1.0);
+    return std::clamp(static_cast<int>(half_up), 0, max_code_);
+  }
 
   std::vector<int> table_;
   int max_code_ = 0;
