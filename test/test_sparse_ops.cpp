@@ -175,6 +175,22 @@ TEST(SparseVsDense, GlobalPoolsPerImage) {
   EXPECT_TRUE(torch::allclose(mx[2], std::get<0>(x.slice(0, 1, 4).max(0))));
 }
 
+TEST(IndexSum, EqualsRowWiseIndexAddToTheBitAndItsGradient) {
+  torch::manual_seed(8);
+  for (std::int64_t channels : {1, 3}) {
+    // Many rows into few, repeated in any order: each sum's order is the rows'.
+    const auto index = torch::randint(0, 5, {400}, torch::kLong);
+    for (auto type : {torch::kFloat, torch::kDouble}) {
+      const auto values = torch::randn({400, channels}, type);
+      const auto expected = torch::zeros({6, channels}, values.options()).index_add(0, index, values);
+      EXPECT_TRUE(torch::equal(indexSum(values, index, 6), expected));
+    }
+    const auto few = index.slice(0, 0, 60);
+    expectGradientsMatch([&](const auto& in) { return indexSum(in[0], few, 6); }, {torch::randn({60, channels})});
+  }
+  EXPECT_THROW(indexSum(torch::zeros({4, 2}), torch::zeros({3}, torch::kLong), 2), c10::Error);
+}
+
 TEST(GradCheck, SubmanifoldConv) {
   torch::manual_seed(6);
   auto sites = randomSites(2, 7, 6, 14, 3);

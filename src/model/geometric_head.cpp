@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "digital_sun_sensor/sparse/ops.h"
 #include "geometric_solve.h"
 
 namespace dss {
@@ -38,9 +39,7 @@ struct SpotReads {
 SpotReads readSpots(const torch::Tensor& site_um, const torch::Tensor& weight, const torch::Tensor& spot,
                     std::int64_t spots) {
   SpotReads r;
-  auto per_spot = [&](const torch::Tensor& values) {
-    return torch::zeros({spots, values.size(1)}, values.options()).index_add(0, spot, values);
-  };
+  auto per_spot = [&](const torch::Tensor& values) { return sparse::indexSum(values, spot, spots); };
   const auto w = weight.view({-1, 1});
   r.sum = per_spot(w).view({-1});
   const auto safe = r.sum.clamp_min(1e-30).view({-1, 1});

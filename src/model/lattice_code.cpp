@@ -5,6 +5,8 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "digital_sun_sensor/sparse/ops.h"
+
 namespace dss {
 namespace {
 
@@ -60,9 +62,9 @@ CodePlacement codeLatticePlacement(const LatticeCode& code, const torch::Tensor&
   const auto flat = (index * ay.cells + cy) * ax.cells + cx;
   const auto l = lit.detach().reshape({-1, 1}).to(torch::kDouble);
   const auto offset = rel - rel.round();  // within the cell, in pitches
-  const auto sums = torch::zeros({batch * ay.cells * ax.cells, 5}, phase_d.options())
-                        .index_add_(0, flat, torch::cat({l, l * offset, l * offset.pow(2)}, 1))
-                        .view({batch, 1, 1, ay.cells, ax.cells, 5});
+  const auto sums =
+      sparse::indexSum(torch::cat({l, l * offset, l * offset.pow(2)}, 1), flat, batch * ay.cells * ax.cells)
+          .view({batch, 1, 1, ay.cells, ax.cells, 5});
   const auto area = sums.select(5, 0);
   const auto n = area.clamp_min(1.0);
   const auto spread_x = sums.select(5, 3) / n - (sums.select(5, 1) / n).pow(2);

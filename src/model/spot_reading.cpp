@@ -29,9 +29,7 @@ torch::Tensor SscnnNetImpl::centroidWeights(const torch::Tensor& logits, const t
 SscnnNetImpl::SpotReading SscnnNetImpl::readSpots(const torch::Tensor& w, const torch::Tensor& xy,
                                                   const torch::Tensor& lit, const torch::Tensor& index,
                                                   std::int64_t batch) const {
-  auto weighted_sum = [&](const torch::Tensor& values) {
-    return torch::zeros({batch, values.size(1)}, values.options()).index_add(0, index, values);
-  };
+  auto weighted_sum = [&](const torch::Tensor& values) { return sparse::indexSum(values, index, batch); };
   SpotReading reading;
   reading.centroid = weighted_sum(w * xy) / (weighted_sum(w) + 1e-6);
   if (!arch_.latticeHead()) return reading;
@@ -98,9 +96,7 @@ torch::Tensor SscnnNetImpl::spotwisePhaseFactors(const torch::Tensor& w, const t
   const auto unique = torch::_unique(key, /*sorted=*/false, /*return_inverse=*/true);
   const torch::Tensor& spot = std::get<1>(unique);  // the site's spot, 0 .. spots - 1
   const std::int64_t spots = std::get<0>(unique).size(0);
-  auto per_spot = [&](const torch::Tensor& values) {
-    return torch::zeros({spots, values.size(1)}, values.options()).index_add(0, spot, values);
-  };
+  auto per_spot = [&](const torch::Tensor& values) { return sparse::indexSum(values, spot, spots); };
   const torch::Tensor sum_w = per_spot(w).clamp_min(1e-12);
   const torch::Tensor mean = per_spot(w * xy) / sum_w;
   const torch::Tensor spread = (per_spot(w * xy * xy) / sum_w - mean * mean).sum(1, true);  // s^2

@@ -398,8 +398,19 @@ torch::Tensor globalAvgPool(const torch::Tensor& features, const SiteSet& sites)
       inverse.data_ptr<scalar_t>()[b] =
           counts[static_cast<std::size_t>(b)] > 0 ? scalar_t(1) / counts[static_cast<std::size_t>(b)] : scalar_t(0);
   });
-  auto sums = torch::zeros({sites.batchSize(), features.size(1)}, features.options());
-  return sums.index_add(0, batchIndex(sites), features) * inverse;
+  return indexSum(features, batchIndex(sites), sites.batchSize()) * inverse;
+}
+
+torch::Tensor indexSum(const torch::Tensor& values, const torch::Tensor& index, std::int64_t rows) {
+  TORCH_CHECK(values.dim() == 2 && index.dim() == 1 && index.size(0) == values.size(0),
+              "indexSum: values [N, C] and index [N] expected");
+  const std::int64_t channels = values.size(1);
+  // Element (i, c) adds to (index[i], c) in order of i, as the row-wise sum does.
+  const torch::Tensor flat_index =
+      channels == 1 ? index : (index.unsqueeze(1) * channels + torch::arange(channels, index.options())).reshape({-1});
+  return torch::zeros({rows * channels}, values.options())
+      .index_add(0, flat_index, values.reshape({-1}))
+      .view({rows, channels});
 }
 
 torch::Tensor globalMaxPool(const torch::Tensor& features, const SiteSet& sites) {

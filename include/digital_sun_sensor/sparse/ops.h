@@ -27,4 +27,11 @@ torch::Tensor toDense(const torch::Tensor& features, const SiteSet& sites);
 // Batch index of every site as an int64 tensor [sites] (for index_add pooling).
 torch::Tensor batchIndex(const SiteSet& sites);
 
+// torch::zeros({rows, C}).index_add(0, index, values) for values [N, C] and
+// index [N] (int64), the same sums to the bit, differentiable in values:
+// through one index_add over the flattened matrix. ATen 1.13 adds a
+// matrix's rows one dispatched add per row (~90 us for 2900 sites of three
+// channels, against ~20 us flattened).
+torch::Tensor indexSum(const torch::Tensor& values, const torch::Tensor& index, std::int64_t rows);
+
 }  // namespace dss::sparse
