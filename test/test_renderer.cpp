@@ -47,7 +47,7 @@ Eigen::Vector2d windowedCentroidPx(const cv::Mat& electrons, const Eigen::Vector
   return {sx / s, sy / s};
 }
 
-// The runs of a mask's row (eight bytes at a time where it can) against a
+// The runs of a mask's row (sixteen bytes at a time where it can) against a
 // byte-by-byte reading: any length, any non-zero byte value, runs that
 // start, end or break anywhere within a word.
 TEST(RowRuns, RunsAreThoseOfAByteByByteReading) {
