@@ -1,8 +1,12 @@
-// rostest: calibration_node with thesis_ca's shipped model and a coarse sun
-// sensor. Where the mask's pattern fits two places that are mirror images of
-// each other (alpha about +-2.87 deg, 5.74 deg apart), the image alone is
-// declined ambiguous_aperture; with a coarse direction near the truth it is
-// answered there, and one about midway leaves it declined.
+// rostests: calibration_node with thesis_ca's shipped model. Where the
+// mask's pattern fits two places that are mirror images of each other (alpha
+// about +-2.87 deg, 5.74 deg apart), the image alone is declined
+// ambiguous_aperture. coarse_sun.test: with a coarse sun sensor's direction
+// near the truth it is answered there, and one about midway leaves it
+// declined. tracking.test: the node's own answer a moment before chooses,
+// one older than ~tracking/max_age_s does not, and an answer far from the
+// last one is counted in diagnostics.
+#include <diagnostic_msgs/DiagnosticArray.h>
 #include <digital_sun_sensor/SunAngles.h>
 #include <geometry_msgs/Vector3Stamped.h>
 #include <gtest/gtest.h>
@@ -25,30 +29,83 @@ using digital_sun_sensor::SunAngles;
 
 std::mutex mutex;
 std::map<double, SunAngles::ConstPtr> answers;  // by stamp
+diagnostic_msgs::DiagnosticStatus estimator_status;
+
+// thesis_ca's nominal design seen from (alpha, beta) [deg].
+cv::Mat thesisCaImage(double alpha_deg, double beta_deg) {
+  static const dss::SensorConfig config =
+      dss::loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_ca.yaml");
+  static const dss::Renderer renderer(dss::SensorInstance::nominalOf(config));
+  return renderer.render(dss::sunVectorFromAngles(dss::degToRad(alpha_deg), dss::degToRad(beta_deg)), 2, nullptr);
+}
+
+// Waits for the node (it loads the model and computes its design's spots
+// first), then publishes images one at a time, each once the last was
+// answered (the node's queue keeps the newest images only).
+class ThesisCaNode {
+ public:
+  ThesisCaNode() : nh_("/sun_sensor") {
+    images_ = nh_.advertise<sensor_msgs::Image>("image", 10);
+    answers_ = nh_.subscribe<SunAngles>(
+        "angles", 10, boost::function<void(const SunAngles::ConstPtr&)>([](const SunAngles::ConstPtr& m) {
+          std::lock_guard<std::mutex> lock(mutex);
+          answers[m->header.stamp.toSec()] = m;
+        }));
+    diagnostics_ = nh_.subscribe<diagnostic_msgs::DiagnosticArray>(
+        "/diagnostics", 10,
+        boost::function<void(const diagnostic_msgs::DiagnosticArray::ConstPtr&)>(
+            [](const diagnostic_msgs::DiagnosticArray::ConstPtr& m) {
+              std::lock_guard<std::mutex> lock(mutex);
+              for (const auto& s : m->status)
+                if (s.name.find("estimator") != std::string::npos) estimator_status = s;
+            }));
+  }
+  // Whether the node and `also` (if given) are connected within 200 s.
+  bool connected(const ros::Publisher* also = nullptr) {
+    const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(200.0);
+    while (ros::ok() && ros::WallTime::now() < deadline) {
+      if (images_.getNumSubscribers() > 0 && answers_.getNumPublishers() > 0 &&
+          (!also || also->getNumSubscribers() > 0))
+        return true;
+      ros::WallDuration(0.1).sleep();
+    }
+    return false;
+  }
+  // The answer to `image` stamped `stamp_s` (null after 60 s).
+  SunAngles::ConstPtr answer(const cv::Mat& image, double stamp_s) {
+    std_msgs::Header header;
+    header.stamp = ros::Time(stamp_s);
+    header.frame_id = "sun_sensor_link";
+    images_.publish(dss::toImageMsg(image, header));
+    const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(60.0);
+    while (ros::ok() && ros::WallTime::now() < deadline) {
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (answers.count(stamp_s)) return answers.at(stamp_s);
+      }
+      ros::WallDuration(0.05).sleep();
+    }
+    return nullptr;
+  }
+  ros::NodeHandle& handle() { return nh_; }
+
+ private:
+  ros::NodeHandle nh_;
+  ros::Publisher images_;
+  ros::Subscriber answers_, diagnostics_;
+};
+
+std::string diagnosticValue(const diagnostic_msgs::DiagnosticStatus& status, const std::string& key) {
+  for (const auto& kv : status.values)
+    if (kv.key == key) return kv.value;
+  return "";
+}
 
 TEST(CalibrationNode, CoarseSunDirectionChoosesBetweenMirrorImagePlaces) {
-  ros::NodeHandle nh("/sun_sensor");
-  ros::Publisher images = nh.advertise<sensor_msgs::Image>("image", 10);
-  ros::Publisher coarse = nh.advertise<geometry_msgs::Vector3Stamped>("coarse_sun_vector", 10);
-  ros::Subscriber sub = nh.subscribe<SunAngles>(
-      "angles", 10, boost::function<void(const SunAngles::ConstPtr&)>([](const SunAngles::ConstPtr& m) {
-        std::lock_guard<std::mutex> lock(mutex);
-        answers[m->header.stamp.toSec()] = m;
-      }));
-  // The node loads the model and computes its design's spots first.
-  const ros::WallTime connect_deadline = ros::WallTime::now() + ros::WallDuration(200.0);
-  while (ros::ok() &&
-         (images.getNumSubscribers() == 0 || coarse.getNumSubscribers() == 0 || sub.getNumPublishers() == 0) &&
-         ros::WallTime::now() < connect_deadline)
-    ros::WallDuration(0.1).sleep();
-  ASSERT_GT(images.getNumSubscribers(), 0u);
-  ASSERT_GT(coarse.getNumSubscribers(), 0u);
-
-  const dss::SensorConfig config =
-      dss::loadSensorConfig(std::string(DSS_SOURCE_DIR) + "/config/sensors/thesis_ca.yaml");
-  const dss::Renderer renderer(dss::SensorInstance::nominalOf(config));
-  const double alpha = dss::degToRad(2.87), beta = dss::degToRad(0.1);
-  const cv::Mat image = renderer.render(dss::sunVectorFromAngles(alpha, beta), 2, nullptr);
+  ThesisCaNode node;
+  ros::Publisher coarse = node.handle().advertise<geometry_msgs::Vector3Stamped>("coarse_sun_vector", 10);
+  ASSERT_TRUE(node.connected(&coarse));
+  const cv::Mat image = thesisCaImage(2.87, 0.1);
 
   // The same image three times: no coarse direction, one near the truth, one about midway.
   const std::optional<double> coarse_alpha_deg[] = {std::nullopt, 4.0, 0.3};
@@ -60,16 +117,7 @@ TEST(CalibrationNode, CoarseSunDirectionChoosesBetweenMirrorImagePlaces) {
       coarse.publish(dss::toSunVectorMsg(dss::degToRad(*coarse_alpha_deg[i]), dss::degToRad(0.5), header));
       ros::WallDuration(0.05).sleep();  // the direction first
     }
-    images.publish(dss::toImageMsg(image, header));
-    // One at a time: the node's queue keeps the newest images only.
-    const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(60.0);
-    while (ros::ok() && ros::WallTime::now() < deadline) {
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (answers.count(header.stamp.toSec())) break;
-      }
-      ros::WallDuration(0.05).sleep();
-    }
+    node.answer(image, header.stamp.toSec());
   }
   std::lock_guard<std::mutex> lock(mutex);
   ASSERT_EQ(answers.size(), 3u);
@@ -83,6 +131,48 @@ TEST(CalibrationNode, CoarseSunDirectionChoosesBetweenMirrorImagePlaces) {
   EXPECT_NEAR(dss::radToDeg(near_truth.beta), 0.1, 0.005);
   EXPECT_FALSE(midway.valid);
   EXPECT_EQ(dss::status::statusCode(midway.status), dss::status::kAmbiguousAperture) << midway.status;
+}
+
+// ~tracking/max_rate_deg_s 2, max_age_s 1 (tracking.test).
+TEST(CalibrationNode, ItsOwnLastAnswerChoosesBetweenMirrorImagePlaces) {
+  ThesisCaNode node;
+  ASSERT_TRUE(node.connected());
+  const cv::Mat near_band = thesisCaImage(2.0, 0.1), at_alias = thesisCaImage(2.87, 0.1);
+  const cv::Mat other_side = thesisCaImage(-2.0, 0.1);
+
+  const auto first = node.answer(near_band, 200.0);
+  ASSERT_TRUE(first);
+  ASSERT_TRUE(first->valid) << "outside the alias band the image alone decides: " << first->status;
+  // 0.1 s later the sun lies within 0.2 deg of that answer: nearer one place by far.
+  const auto tracked = node.answer(at_alias, 200.1);
+  ASSERT_TRUE(tracked);
+  ASSERT_TRUE(tracked->valid) << tracked->status;
+  EXPECT_NEAR(dss::radToDeg(tracked->alpha), 2.87, 0.005);
+  EXPECT_NEAR(dss::radToDeg(tracked->beta), 0.1, 0.005);
+  // 2 s after the last answer (beyond max_age_s): the image alone, declined.
+  const auto stale = node.answer(at_alias, 202.1);
+  ASSERT_TRUE(stale);
+  EXPECT_FALSE(stale->valid);
+  EXPECT_EQ(dss::status::statusCode(stale->status), dss::status::kAmbiguousAperture) << stale->status;
+  // An answer the image decides alone 4 deg from one 0.05 s before (a 2 deg/s bound allows 0.1 deg).
+  ASSERT_TRUE(node.answer(near_band, 203.0));
+  const auto jumped = node.answer(other_side, 203.05);
+  ASSERT_TRUE(jumped);
+  EXPECT_TRUE(jumped->valid) << jumped->status;
+  EXPECT_NEAR(dss::radToDeg(jumped->alpha), -2.0, 0.005) << "the image's own answer, not the prior's";
+
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(5.0);
+  while (ros::ok() && ros::WallTime::now() < deadline) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (diagnosticValue(estimator_status, "answers contradicting the tracking prior") == "1") break;
+    }
+    ros::WallDuration(0.05).sleep();
+  }
+  std::lock_guard<std::mutex> lock(mutex);
+  EXPECT_EQ(diagnosticValue(estimator_status, "answers contradicting the tracking prior"), "1");
+  EXPECT_EQ(diagnosticValue(estimator_status, "images with the tracking prior"), "2")
+      << "those at 200.1 and 203.05 (the answer at 200.1 was too old for 202.1 and 203.0)";
 }
 
 }  // namespace

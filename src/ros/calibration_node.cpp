@@ -147,6 +147,15 @@ CalibrationNode::CalibrationNode(ros::NodeHandle nh, ros::NodeHandle pnh)
     }
   }
 
+  TrackingOptions tracking;
+  tracking.max_rate_deg_s = pnh_.param("tracking/max_rate_deg_s", tracking.max_rate_deg_s);
+  tracking.max_age_s = pnh_.param("tracking/max_age_s", tracking.max_age_s);
+  try {
+    tracking_ = TrackingPrior(tracking);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(std::string("~") + e.what());
+  }
+
   angles_pub_ = nh_.advertise<SunAngles>("angles", 10);
   vector_pub_ = nh_.advertise<geometry_msgs::Vector3Stamped>("sun_vector", 10);
   // The subscriber queue is deep and its callback only enqueues, so that
@@ -206,6 +215,7 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
   std::vector<SunEstimate> estimates(batch.size());
   std::vector<cv::Mat> images;
   std::vector<std::size_t> where;
+  std::uint64_t priors = 0;  // images given the tracking prior
   for (std::size_t i = 0; i < batch.size(); ++i) {
     try {
       images.push_back(imageFromMsg(*batch[i]));
@@ -220,15 +230,25 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
     std::lock_guard<std::mutex> lock(estimator_mutex_);
     try {
       std::vector<SunEstimate> out;
-      if (coarse_sun_) {
+      if (coarse_sun_ || tracking_.enabled()) {
+        // Per image the coarse sun sensor's direction or the tracking prior,
+        // whichever is tighter (the images of a batch share the prior from
+        // before it).
         CoarseDirections coarse;
         for (std::size_t i : where) {
           std_msgs::Header header = batch[i]->header;
           if (header.frame_id.empty()) header.frame_id = default_frame_id_;
-          const auto angles = coarse_sun_->forImage(header);
-          coarse.push_back(
-              angles ? std::optional<CoarseDirection>(CoarseDirection{(*angles)[0], (*angles)[1], coarse_sigma_rad_})
-                     : std::nullopt);
+          std::optional<CoarseDirection> direction;
+          if (coarse_sun_) {
+            if (const auto angles = coarse_sun_->forImage(header))
+              direction = CoarseDirection{(*angles)[0], (*angles)[1], coarse_sigma_rad_};
+          }
+          const auto prior = header.stamp.isZero() ? std::nullopt : tracking_.at(header.stamp.toSec());
+          if (prior && (!direction || prior->sigma_rad < direction->sigma_rad)) {
+            direction = prior;
+            ++priors;
+          }
+          coarse.push_back(direction);
         }
         out = estimator_->estimateWithCoarseDirections(images, coarse);
       } else {
@@ -258,6 +278,15 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
       for (std::size_t i : where) recalibration_->widen(estimates[i]);
     }
   }
+  // The answers as published, in order, become the tracking prior (images
+  // without a stamp carry no time to age it by).
+  std::uint64_t contradictions = 0;
+  for (std::size_t i = 0; i < batch.size() && tracking_.enabled(); ++i) {
+    if (batch[i]->header.stamp.isZero()) continue;
+    const double stamp_s = batch[i]->header.stamp.toSec();
+    contradictions += tracking_.contradicts(stamp_s, estimates[i]);
+    tracking_.update(stamp_s, estimates[i]);
+  }
   for (std::size_t i = 0; i < batch.size(); ++i) {
     // Encoding, buffer, or a size the sensor config disagrees with.
     if (status::statusCode(estimates[i].status) == status::kBadImage)
@@ -268,6 +297,8 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
   const ros::Time now = ros::Time::now();
 
   std::lock_guard<std::mutex> lock(stats_mutex_);
+  tracking_priors_ += priors;
+  tracking_contradictions_ += contradictions;
   for (std::size_t i = 0; i < batch.size(); ++i) {
     const SunEstimate& e = estimates[i];
     ++processed_;
@@ -348,6 +379,8 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   const std::uint64_t bad_now = bad_images_ - bad_images_at_last_diag_;
   processed_at_last_diag_ = processed_;
   bad_images_at_last_diag_ = bad_images_;
+  const std::uint64_t contradictions_now = tracking_contradictions_ - contradictions_at_last_diag_;
+  contradictions_at_last_diag_ = tracking_contradictions_;
   const std::string bad_summary = std::to_string(bad_now) + " of " + std::to_string(processed_now) +
                                   " images since the last report were bad (latest: " + last_bad_image_ + ")";
 
@@ -365,6 +398,11 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
                  "unit): calibrate the unit (dss calibrate-unit)");
   } else if (bad_now > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, bad_summary);
+  } else if (contradictions_now > 0) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                 std::to_string(contradictions_now) +
+                     " answers since the last report lay far from the tracking prior: is ~tracking/max_rate_deg_s "
+                     "below the spacecraft's rate, or are the images not one sequence?");
   } else {
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "estimating");
   }
@@ -398,6 +436,10 @@ void CalibrationNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     stat.add("coarse sun directions received", c.received);
     stat.add("images with a coarse sun direction", c.paired);
     stat.add("images without one", c.unpaired_images + c.unresolved_frames + c.behind_sensor);
+  }
+  if (tracking_.enabled()) {
+    stat.add("images with the tracking prior", tracking_priors_);
+    stat.add("answers contradicting the tracking prior", tracking_contradictions_);
   }
   if (recalibration_) recalibration_->diagnose(stat);
 }

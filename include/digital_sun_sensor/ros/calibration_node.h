@@ -24,6 +24,7 @@
 
 #include "digital_sun_sensor/common/sun_estimate.h"
 #include "digital_sun_sensor/estimate/screened_estimator.h"
+#include "digital_sun_sensor/estimate/tracking_prior.h"
 #include "digital_sun_sensor/ros/in_flight_recalibration.h"
 #include "digital_sun_sensor/ros/sun_direction_input.h"
 
@@ -51,6 +52,7 @@ class CalibrationNode {
   std::unique_ptr<InFlightRecalibration> recalibration_;  // ~recalibration/enabled
   std::unique_ptr<SunDirectionInput> coarse_sun_;         // ~coarse_sun/topic
   double coarse_sigma_rad_ = 0.0;
+  TrackingPrior tracking_;  // ~tracking: the last answer as the next images' coarse direction (worker thread only)
   std::string source_, estimator_problem_, model_path_, calibration_path_;
   std::string inference_symmetry_ = "none";  // of the SSCNN in use
   double mismatch_threshold_ = 0.0;          // its model_mismatch threshold (0: none)
@@ -89,6 +91,9 @@ class CalibrationNode {
   // Bad images since the last diagnostics period: WARN while they come, OK after.
   std::uint64_t processed_at_last_diag_ = 0, bad_images_at_last_diag_ = 0;
   std::string last_bad_image_;
+  // Images given the tracking prior as their coarse direction, and valid
+  // answers far from it (a rate bound the motion breaks).
+  std::uint64_t tracking_priors_ = 0, tracking_contradictions_ = 0, contradictions_at_last_diag_ = 0;
   ros::WallTime last_diag_time_;
 };
 

@@ -1,0 +1,58 @@
+// The estimator's own last answer as a coarse direction for the images that
+// follow (tracking). Where a mask's pattern repeats within the field
+// (thesis_ca: two places 5.74 deg apart that are mirror images of each
+// other), the image alone cannot choose between them; but the sun cannot
+// have moved farther than the spacecraft's rate allows since the last
+// answer. The prior's sigma is the answer's own plus a bound on the sun's
+// angular rate in the sensor frame times the time since, so it only
+// decides while that bound holds and the answer is recent (the estimator
+// needs a place 3 sigma nearer; PatternEstimator::kCoarseDecisionSigmas).
+// A bound the motion breaks shows as answers the images decide alone far
+// from the prior (contradicts()). Torch-free header.
+#pragma once
+
+#include <optional>
+
+#include "digital_sun_sensor/common/sun_estimate.h"
+
+namespace dss {
+
+struct TrackingOptions {
+  double max_rate_deg_s = 0.0;  // bound on the sun's angular rate in the sensor frame; 0: no tracking
+  double max_age_s = 1.0;       // an answer older than this gives no prior
+
+  bool enabled() const { return max_rate_deg_s > 0.0; }
+  // Throws std::invalid_argument naming the first bad value.
+  void validate() const;
+};
+
+class TrackingPrior {
+ public:
+  // A valid answer this many prior sigmas away contradicts it.
+  static constexpr double kContradictionSigmas = 5.0;
+
+  explicit TrackingPrior(TrackingOptions options = {});
+
+  // The latest answer becomes the prior (whatever its stamp: a replay that
+  // restarts starts the prior over); invalid or non-finite ones are ignored.
+  void update(double stamp_s, const SunEstimate& estimate);
+  // The prior for an image at stamp_s [s]: none when tracking is off, before
+  // the first answer, for an image stamped before the answer or more than
+  // max_age_s after it, or where the rate bound reaches 90 deg off axis.
+  std::optional<CoarseDirection> at(double stamp_s) const;
+  // Whether a valid answer at stamp_s lies more than kContradictionSigmas of
+  // the prior's sigma from it on either axis (false without a prior).
+  bool contradicts(double stamp_s, const SunEstimate& estimate) const;
+  void reset() { last_.reset(); }
+  bool enabled() const { return options_.enabled(); }
+
+ private:
+  struct Answer {
+    double stamp_s;
+    double alpha_rad, beta_rad, sigma_rad;
+  };
+  TrackingOptions options_;
+  std::optional<Answer> last_;
+};
+
+}  // namespace dss

@@ -1,0 +1,56 @@
+#include "digital_sun_sensor/estimate/tracking_prior.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include "digital_sun_sensor/common/units.h"
+#include "digital_sun_sensor/sim/geometry.h"
+
+namespace dss {
+
+void TrackingOptions::validate() const {
+  if (!(max_rate_deg_s >= 0.0) || !std::isfinite(max_rate_deg_s))
+    throw std::invalid_argument("tracking/max_rate_deg_s must be >= 0 (0: no tracking), not " +
+                                std::to_string(max_rate_deg_s));
+  if (!(max_age_s > 0.0) || !std::isfinite(max_age_s))
+    throw std::invalid_argument("tracking/max_age_s must be > 0, not " + std::to_string(max_age_s));
+}
+
+TrackingPrior::TrackingPrior(TrackingOptions options) : options_(options) { options_.validate(); }
+
+void TrackingPrior::update(double stamp_s, const SunEstimate& estimate) {
+  if (!options_.enabled() || !estimate.valid || !std::isfinite(stamp_s)) return;
+  const double variance = std::max(estimate.covariance[0], estimate.covariance[3]);
+  if (!std::isfinite(estimate.alpha_rad) || !std::isfinite(estimate.beta_rad) || !(variance >= 0.0) ||
+      !std::isfinite(variance))
+    return;
+  last_ = Answer{stamp_s, estimate.alpha_rad, estimate.beta_rad, std::sqrt(variance)};
+}
+
+std::optional<CoarseDirection> TrackingPrior::at(double stamp_s) const {
+  if (!last_ || !options_.enabled()) return std::nullopt;
+  const double age_s = stamp_s - last_->stamp_s;
+  if (!(age_s >= 0.0) || age_s > options_.max_age_s) return std::nullopt;
+  // The sun moves at most `turn` on the sky. alpha turns about the sensor's
+  // y axis, so a move of d on the sky changes it by at most d over the
+  // distance from that axis, cos(the direction's angle from the x-z plane),
+  // which the move itself can shrink by up to `turn` (beta likewise about x).
+  const double turn = degToRad(options_.max_rate_deg_s) * age_s;
+  const Eigen::Vector3d sun = sunVectorFromAngles(last_->alpha_rad, last_->beta_rad);
+  const double off_axis =
+      std::max(std::asin(std::min(1.0, std::abs(sun.x()))), std::asin(std::min(1.0, std::abs(sun.y())))) + turn;
+  if (!(off_axis < 0.5 * kPi)) return std::nullopt;
+  return CoarseDirection{last_->alpha_rad, last_->beta_rad, last_->sigma_rad + turn / std::cos(off_axis)};
+}
+
+bool TrackingPrior::contradicts(double stamp_s, const SunEstimate& estimate) const {
+  const std::optional<CoarseDirection> prior = at(stamp_s);
+  if (!prior || !estimate.valid) return false;
+  const double limit = kContradictionSigmas * prior->sigma_rad;
+  return std::abs(estimate.alpha_rad - prior->alpha_rad) > limit ||
+         std::abs(estimate.beta_rad - prior->beta_rad) > limit;
+}
+
+}  // namespace dss
