@@ -26,10 +26,16 @@ void TrackingPrior::update(double stamp_s, const SunEstimate& estimate) {
   if (!std::isfinite(estimate.alpha_rad) || !std::isfinite(estimate.beta_rad) || !(variance >= 0.0) ||
       !std::isfinite(variance))
     return;
-  last_ = Answer{stamp_s, estimate.alpha_rad, estimate.beta_rad, std::sqrt(variance)};
+  const int agreeing = fromLast(stamp_s) && !contradicts(stamp_s, estimate) ? last_->agreeing + 1 : 0;
+  last_ = Answer{stamp_s, estimate.alpha_rad, estimate.beta_rad, std::sqrt(variance), std::min(agreeing, 1 << 20)};
 }
 
 std::optional<CoarseDirection> TrackingPrior::at(double stamp_s) const {
+  if (!last_ || last_->agreeing < kAgreeingAnswers) return std::nullopt;
+  return fromLast(stamp_s);
+}
+
+std::optional<CoarseDirection> TrackingPrior::fromLast(double stamp_s) const {
   if (!last_ || !options_.enabled()) return std::nullopt;
   const double age_s = stamp_s - last_->stamp_s;
   if (!(age_s >= 0.0) || age_s > options_.max_age_s) return std::nullopt;
@@ -46,9 +52,12 @@ std::optional<CoarseDirection> TrackingPrior::at(double stamp_s) const {
 }
 
 bool TrackingPrior::contradicts(double stamp_s, const SunEstimate& estimate) const {
-  const std::optional<CoarseDirection> prior = at(stamp_s);
+  const std::optional<CoarseDirection> prior = fromLast(stamp_s);
   if (!prior || !estimate.valid) return false;
-  const double limit = kContradictionSigmas * prior->sigma_rad;
+  // The prior's sigma is the last answer's plus the bound's reach.
+  const double reach = prior->sigma_rad - last_->sigma_rad;
+  const double variance = std::max(estimate.covariance[0], estimate.covariance[3]);
+  const double limit = reach + kNoiseSigmas * std::sqrt(last_->sigma_rad * last_->sigma_rad + std::max(0.0, variance));
   return std::abs(estimate.alpha_rad - prior->alpha_rad) > limit ||
          std::abs(estimate.beta_rad - prior->beta_rad) > limit;
 }

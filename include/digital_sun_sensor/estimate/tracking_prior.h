@@ -7,8 +7,11 @@
 // angular rate in the sensor frame times the time since, so it only
 // decides while that bound holds and the answer is recent (the estimator
 // needs a place 3 sigma nearer; PatternEstimator::kCoarseDecisionSigmas).
-// A bound the motion breaks shows as answers the images decide alone far
-// from the prior (contradicts()). Torch-free header.
+// A bound the motion breaks shows as answers farther from the one before
+// than it allows (contradicts()): the prior is only given while the last
+// kAgreeingAnswers answers each lay within it of the one before, so that a
+// sun faster than the bound leaves the alias declined rather than chosen
+// from a place the sun has left. Torch-free header.
 #pragma once
 
 #include <optional>
@@ -28,8 +31,11 @@ struct TrackingOptions {
 
 class TrackingPrior {
  public:
-  // A valid answer this many prior sigmas away contradicts it.
-  static constexpr double kContradictionSigmas = 5.0;
+  // An answer contradicts the prior beyond the rate bound's reach plus this
+  // many sigmas of the two answers' difference.
+  static constexpr double kNoiseSigmas = 5.0;
+  // Answers in a row within the bound of the one before, before a prior is given.
+  static constexpr int kAgreeingAnswers = 2;
 
   explicit TrackingPrior(TrackingOptions options = {});
 
@@ -38,10 +44,12 @@ class TrackingPrior {
   void update(double stamp_s, const SunEstimate& estimate);
   // The prior for an image at stamp_s [s]: none when tracking is off, before
   // the first answer, for an image stamped before the answer or more than
-  // max_age_s after it, or where the rate bound reaches 90 deg off axis.
+  // max_age_s after it, where the rate bound reaches 90 deg off axis, or
+  // before kAgreeingAnswers answers in a row agreed with the one before.
   std::optional<CoarseDirection> at(double stamp_s) const;
-  // Whether a valid answer at stamp_s lies more than kContradictionSigmas of
-  // the prior's sigma from it on either axis (false without a prior).
+  // Whether a valid answer at stamp_s lies farther from the last answer, on
+  // either axis, than the rate bound allows in the time between them plus
+  // kNoiseSigmas of their difference's sigma (false without a recent answer).
   bool contradicts(double stamp_s, const SunEstimate& estimate) const;
   void reset() { last_.reset(); }
   bool enabled() const { return options_.enabled(); }
@@ -50,7 +58,10 @@ class TrackingPrior {
   struct Answer {
     double stamp_s;
     double alpha_rad, beta_rad, sigma_rad;
+    int agreeing;  // answers in a row, up to this one, within the bound of the one before
   };
+  // The prior from the last answer, whether or not it agreed.
+  std::optional<CoarseDirection> fromLast(double stamp_s) const;
   TrackingOptions options_;
   std::optional<Answer> last_;
 };
