@@ -44,7 +44,8 @@ cat >"$work/tracking.launch" <<LAUNCH
         args="-O $work/run.bag /sun_sensor/truth /sun_sensor/angles /sun_sensor/angles_tracking /diagnostics"/>
 </launch>
 LAUNCH
-# Both estimators warm up (~15 s) while the simulator does; the run then lasts DURATION_S.
+# roslaunch runs DURATION_S + 60 s; the warm-ups (the simulator's diffraction cache, the estimators'
+# canvases) take part of the 60 s, and images are recorded from the simulator's first one.
 timeout --signal=INT "$((duration + 60))" roslaunch "$work/tracking.launch" >"$work/launch.log" 2>&1 || true
 [ -s "$work/run.bag" ] || { tail -n 30 "$work/launch.log" >&2; echo "no bag recorded" >&2; exit 1; }
 /usr/bin/python3 "$(dirname "$0")/tracking_table.py" "$work/run.bag" "$max_rate"

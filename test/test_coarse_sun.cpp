@@ -77,11 +77,12 @@ class ThesisCaNode {
     header.stamp = ros::Time(stamp_s);
     header.frame_id = "sun_sensor_link";
     images_.publish(dss::toImageMsg(image, header));
+    const double key = header.stamp.toSec();  // as the answer's stamp converts
     const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(60.0);
     while (ros::ok() && ros::WallTime::now() < deadline) {
       {
         std::lock_guard<std::mutex> lock(mutex);
-        if (answers.count(stamp_s)) return answers.at(stamp_s);
+        if (answers.count(key)) return answers.at(key);
       }
       ros::WallDuration(0.05).sleep();
     }

@@ -51,7 +51,6 @@ class TrackingPrior {
   // either axis, than the rate bound allows in the time between them plus
   // kNoiseSigmas of their difference's sigma (false without a recent answer).
   bool contradicts(double stamp_s, const SunEstimate& estimate) const;
-  void reset() { last_.reset(); }
   bool enabled() const { return options_.enabled(); }
 
  private:

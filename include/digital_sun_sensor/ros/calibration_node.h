@@ -52,7 +52,9 @@ class CalibrationNode {
   std::unique_ptr<InFlightRecalibration> recalibration_;  // ~recalibration/enabled
   std::unique_ptr<SunDirectionInput> coarse_sun_;         // ~coarse_sun/topic
   double coarse_sigma_rad_ = 0.0;
-  TrackingPrior tracking_;  // ~tracking: the last answer as the next images' coarse direction (worker thread only)
+  // ~tracking: the last answer as the next images' coarse direction (its
+  // answers: the worker thread only; its options: fixed before it starts).
+  TrackingPrior tracking_;
   std::string source_, estimator_problem_, model_path_, calibration_path_;
   std::string inference_symmetry_ = "none";  // of the SSCNN in use
   double mismatch_threshold_ = 0.0;          // its model_mismatch threshold (0: none)
