@@ -26,8 +26,10 @@ void TrackingPrior::update(double stamp_s, const SunEstimate& estimate) {
   if (!std::isfinite(estimate.alpha_rad) || !std::isfinite(estimate.beta_rad) || !(variance >= 0.0) ||
       !std::isfinite(variance))
     return;
-  const int agreeing = fromLast(stamp_s) && !contradicts(stamp_s, estimate) ? last_->agreeing + 1 : 0;
-  last_ = Answer{stamp_s, estimate.alpha_rad, estimate.beta_rad, std::sqrt(variance), std::min(agreeing, 1 << 20)};
+  // Counted up to kAgreeingAnswers (a count of every answer would overflow in a long mission).
+  const int agreeing =
+      fromLast(stamp_s) && !contradicts(stamp_s, estimate) ? std::min(last_->agreeing + 1, kAgreeingAnswers) : 0;
+  last_ = Answer{stamp_s, estimate.alpha_rad, estimate.beta_rad, std::sqrt(variance), agreeing};
 }
 
 std::optional<CoarseDirection> TrackingPrior::at(double stamp_s) const {

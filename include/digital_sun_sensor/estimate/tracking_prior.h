@@ -57,7 +57,7 @@ class TrackingPrior {
   struct Answer {
     double stamp_s;
     double alpha_rad, beta_rad, sigma_rad;
-    int agreeing;  // answers in a row, up to this one, within the bound of the one before
+    int agreeing;  // answers in a row, up to this one, within the bound of the one before (at most kAgreeingAnswers)
   };
   // The prior from the last answer, whether or not it agreed.
   std::optional<CoarseDirection> fromLast(double stamp_s) const;
