@@ -20,16 +20,18 @@ void TrackingOptions::validate() const {
 
 TrackingPrior::TrackingPrior(TrackingOptions options) : options_(options) { options_.validate(); }
 
-void TrackingPrior::update(double stamp_s, const SunEstimate& estimate) {
-  if (!options_.enabled() || !estimate.valid || !std::isfinite(stamp_s)) return;
+bool TrackingPrior::update(double stamp_s, const SunEstimate& estimate) {
+  if (!options_.enabled() || !estimate.valid || !std::isfinite(stamp_s)) return false;
+  const std::optional<CoarseDirection> prior = fromLast(stamp_s);
+  const bool contradicted = prior && beyond(*prior, estimate);
   const double variance = std::max(estimate.covariance[0], estimate.covariance[3]);
   if (!std::isfinite(estimate.alpha_rad) || !std::isfinite(estimate.beta_rad) || !(variance >= 0.0) ||
       !std::isfinite(variance))
-    return;
+    return contradicted;
   // Counted up to kAgreeingAnswers (a count of every answer would overflow in a long mission).
-  const int agreeing =
-      fromLast(stamp_s) && !contradicts(stamp_s, estimate) ? std::min(last_->agreeing + 1, kAgreeingAnswers) : 0;
+  const int agreeing = prior && !contradicted ? std::min(last_->agreeing + 1, kAgreeingAnswers) : 0;
   last_ = Answer{stamp_s, estimate.alpha_rad, estimate.beta_rad, std::sqrt(variance), agreeing};
+  return contradicted;
 }
 
 std::optional<CoarseDirection> TrackingPrior::at(double stamp_s) const {
@@ -55,13 +57,16 @@ std::optional<CoarseDirection> TrackingPrior::fromLast(double stamp_s) const {
 
 bool TrackingPrior::contradicts(double stamp_s, const SunEstimate& estimate) const {
   const std::optional<CoarseDirection> prior = fromLast(stamp_s);
-  if (!prior || !estimate.valid) return false;
+  return prior && beyond(*prior, estimate);
+}
+
+bool TrackingPrior::beyond(const CoarseDirection& prior, const SunEstimate& estimate) const {
+  if (!estimate.valid) return false;
   // The prior's sigma is the last answer's plus the bound's reach.
-  const double reach = prior->sigma_rad - last_->sigma_rad;
+  const double reach = prior.sigma_rad - last_->sigma_rad;
   const double variance = std::max(estimate.covariance[0], estimate.covariance[3]);
   const double limit = reach + kNoiseSigmas * std::sqrt(last_->sigma_rad * last_->sigma_rad + std::max(0.0, variance));
-  return std::abs(estimate.alpha_rad - prior->alpha_rad) > limit ||
-         std::abs(estimate.beta_rad - prior->beta_rad) > limit;
+  return std::abs(estimate.alpha_rad - prior.alpha_rad) > limit || std::abs(estimate.beta_rad - prior.beta_rad) > limit;
 }
 
 }  // namespace dss

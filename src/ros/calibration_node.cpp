@@ -283,9 +283,7 @@ void CalibrationNode::process(const std::vector<sensor_msgs::Image::ConstPtr>& b
   std::uint64_t contradictions = 0;
   for (std::size_t i = 0; i < batch.size() && tracking_.enabled(); ++i) {
     if (batch[i]->header.stamp.isZero()) continue;
-    const double stamp_s = batch[i]->header.stamp.toSec();
-    contradictions += tracking_.contradicts(stamp_s, estimates[i]);
-    tracking_.update(stamp_s, estimates[i]);
+    contradictions += tracking_.update(batch[i]->header.stamp.toSec(), estimates[i]);
   }
   for (std::size_t i = 0; i < batch.size(); ++i) {
     // Encoding, buffer, or a size the sensor config disagrees with.

@@ -41,7 +41,8 @@ class TrackingPrior {
 
   // The latest answer becomes the prior (whatever its stamp: a replay that
   // restarts starts the prior over); invalid or non-finite ones are ignored.
-  void update(double stamp_s, const SunEstimate& estimate);
+  // Returns whether it contradicted the last one (contradicts()).
+  bool update(double stamp_s, const SunEstimate& estimate);
   // The prior for an image at stamp_s [s]: none when tracking is off, before
   // the first answer, for an image stamped before the answer or more than
   // max_age_s after it, where the rate bound reaches 90 deg off axis, or
@@ -61,6 +62,8 @@ class TrackingPrior {
   };
   // The prior from the last answer, whether or not it agreed.
   std::optional<CoarseDirection> fromLast(double stamp_s) const;
+  // Whether a valid answer lies beyond `prior` (fromLast's) as contradicts() says.
+  bool beyond(const CoarseDirection& prior, const SunEstimate& estimate) const;
   TrackingOptions options_;
   std::optional<Answer> last_;
 };
